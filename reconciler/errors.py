@@ -1,0 +1,102 @@
+"""The one exception tree of lpam.
+
+Every error a user can cause or meet is an `LpamError`; the CLI is the only place that
+renders them (one line, plus a hint saying what to do) and turns them into exit codes.
+Anything else that escapes is a bug: the CLI writes its traceback to the debug log.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class LpamError(Exception):
+    """Base of every error lpam reports to a user."""
+
+    exit_code = 1
+
+    def __init__(self, message: str, *, hint: str | None = None) -> None:
+        super().__init__(message)
+        self.message = message
+        self.hint = hint
+
+    def render(self) -> str:
+        """The text the CLI prints: the message, then the hint on its own line."""
+        text = f"error: {self.message}"
+        if self.hint:
+            text += f"\n  hint: {self.hint}"
+        return text
+
+
+class ConfigError(LpamError):
+    """A document (desired state, catalog, plan, legacy file) is at fault.
+
+    Carries the file, line and column (1-based) so the user can go straight to the spot.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: Path | str | None,
+        line: int | None = None,
+        column: int | None = None,
+        hint: str | None = None,
+    ) -> None:
+        super().__init__(message, hint=hint)
+        self.path = Path(path) if path is not None else None
+        self.line = line
+        self.column = column
+
+    @property
+    def where(self) -> str:
+        if self.path is None:
+            return "<input>"
+        where = str(self.path)
+        if self.line is not None:
+            where += f":{self.line}"
+            if self.column is not None:
+                where += f":{self.column}"
+        return where
+
+    def render(self) -> str:
+        text = f"error: {self.where}: {self.message}"
+        if self.hint:
+            text += f"\n  hint: {self.hint}"
+        return text
+
+
+class VersionError(ConfigError):
+    """A document written by a newer lpam than this one (or of an unknown version)."""
+
+
+class GitError(LpamError):
+    """Talking to a git repository failed: unreachable server, bad URL, corrupt store."""
+
+
+class RefNotFoundError(GitError):
+    """The requested branch, tag or commit does not exist in the repository."""
+
+
+class LocalEditsError(GitError):
+    """A checkout in the store has edits that a checkout would throw away."""
+
+
+class CatalogError(LpamError):
+    """The desired app is not in, or ambiguous across, the app catalogs."""
+
+
+class PlanError(LpamError):
+    """A plan cannot be built (cycle in the step graph) or used (stale, tampered)."""
+
+
+class StalePlanError(PlanError):
+    """The saved plan was made against a state record that has since changed."""
+
+
+class LockError(LpamError):
+    """Another apply holds the lock and did not release it in time."""
+
+
+class StepError(LpamError):
+    """A step of an apply failed; the journal says how far the apply got."""

@@ -1,0 +1,154 @@
+"""YAML in and out: every document lpam reads passes through here.
+
+Reading keeps ruamel.yaml's round-trip tree beside the plain data, so that a later
+validation error deep inside the document can still be reported at its line and column.
+Writing goes through the same round-trip emitter, so comments a user put into a desired
+state survive when lpam rewrites it (import, demo switch).
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from reconciler.errors import ConfigError
+
+MAX_DOCUMENT_BYTES = 1024 * 1024
+
+
+@dataclass(frozen=True)
+class Document:
+    """A parsed YAML document: plain data for the code, the tree for positions."""
+
+    path: Path
+    data: Any
+    tree: Any
+
+    def position(self, loc: Iterable[str | int]) -> tuple[int, int]:
+        """1-based (line, column) of the node at `loc`, or of its nearest existing parent."""
+        return locate(self.tree, loc)
+
+    def error(self, message: str, loc: Iterable[str | int] = (), hint: str | None = None) -> ConfigError:
+        line, column = self.position(loc)
+        return ConfigError(message, path=self.path, line=line, column=column, hint=hint)
+
+
+def _yaml(typ: str = "rt") -> Any:
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ=typ)
+    yaml.allow_duplicate_keys = False
+    return yaml
+
+
+def read_text(path: Path) -> str:
+    """Read a document as UTF-8 text; empty, huge, binary or unreadable files are errors."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(
+            "file not found", path=path, hint="check the path, or pass -f FILE"
+        ) from None
+    except IsADirectoryError:
+        raise ConfigError("is a directory, not a file", path=path) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read: {exc.strerror}", path=path) from None
+    if len(raw) > MAX_DOCUMENT_BYTES:
+        raise ConfigError("file is larger than 1 MiB; is it the right file?", path=path)
+    if b"\x00" in raw:
+        raise ConfigError(
+            "file is binary, not YAML text", path=path, line=1, column=1,
+            hint="point lpam at the YAML document itself",
+        )
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            "file is not UTF-8 text", path=path, line=line, column=1,
+            hint="save the file as UTF-8",
+        ) from None
+    if not text.strip():
+        raise ConfigError(
+            "file is empty", path=path, line=1, column=1,
+            hint="start from desired-state.example.yaml",
+        )
+    return text
+
+
+def load(path: Path, text: str | None = None) -> Document:
+    """Parse one YAML document, turning every parser complaint into a ConfigError."""
+    from ruamel.yaml.error import MarkedYAMLError, YAMLError
+
+    if text is None:
+        text = read_text(path)
+    try:
+        tree = _yaml().load(text)
+    except MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        problem = exc.problem or exc.context or "invalid YAML"
+        hint = "fix the YAML syntax at that spot"
+        if "\\t" in problem or "'\\t'" in problem or "tab" in problem.lower():
+            problem, hint = "tab character used for indentation", "indent with spaces, not tabs"
+        elif "duplicate key" in problem:
+            problem = problem.split(" with value")[0]
+            hint = "each key may appear once in a mapping; remove or merge the repeated one"
+        line = mark.line + 1 if mark is not None else None
+        column = mark.column + 1 if mark is not None else None
+        raise ConfigError(problem, path=path, line=line, column=column, hint=hint) from None
+    except YAMLError as exc:
+        raise ConfigError(f"not valid YAML: {exc}", path=path, line=1, column=1) from None
+    return Document(path=path, data=plain(tree), tree=tree)
+
+
+def plain(node: Any) -> Any:
+    """The round-trip tree as plain dicts, lists and scalars (what migrations work on)."""
+    if isinstance(node, Mapping):
+        return {str(k) if not isinstance(k, str) else k: plain(v) for k, v in node.items()}
+    if isinstance(node, list):
+        return [plain(v) for v in node]
+    if isinstance(node, str):
+        return str(node)
+    return node
+
+
+def locate(tree: Any, loc: Iterable[str | int]) -> tuple[int, int]:
+    """Walk `loc` through the round-trip tree; return the deepest known 1-based position."""
+    line, column = 1, 1
+    lc = getattr(tree, "lc", None)
+    if lc is not None:
+        line, column = lc.line + 1, lc.col + 1
+    node = tree
+    for part in loc:
+        lc = getattr(node, "lc", None)
+        try:
+            if isinstance(node, Mapping) and part in node:
+                if lc is not None:
+                    ln, col = lc.key(part)
+                    line, column = ln + 1, col + 1
+                node = node[part]
+            elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
+                if lc is not None:
+                    ln, col = lc.item(part)
+                    line, column = ln + 1, col + 1
+                node = node[part]
+            else:
+                break
+        except (KeyError, TypeError, AttributeError):
+            break
+    return line, column
+
+
+def dump(data: Any, *, header: str | None = None) -> str:
+    """Emit YAML (round-trip style); `header` lines become a leading comment block."""
+    stream = io.StringIO()
+    if header:
+        for line in header.splitlines():
+            stream.write(f"# {line}".rstrip() + "\n")
+    yaml = _yaml()
+    yaml.indent(mapping=2, sequence=4, offset=2)
+    yaml.dump(data, stream)
+    return stream.getvalue()

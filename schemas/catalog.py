@@ -1,0 +1,156 @@
+"""The app catalog: `libpanda-apps.yaml` at the root of an app repository.
+
+Two shapes exist in the wild (lpam-legacy.md). The paper's nests everything under a
+`properties:` map; the field's (libpanda-default-apps) has `path:`, `properties:` as a
+list of one-key maps, and `dependencies:` / `ros_repositories:` at the app's own level.
+`RawCatalog` accepts both strictly; `normalise` turns either into `Catalog`, the one
+model the rest of lpam uses.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictStr, field_validator
+
+from schemas.names import check_app_name, check_owner_repo, check_ref
+
+CATALOG_FILE = "libpanda-apps.yaml"
+APP_FILES = ("install.sh", "uninstall.sh", "start.sh", "stop.sh", "description.txt", "service")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class RawRosRepository(_Strict):
+    owner: StrictStr
+    repo: StrictStr
+    branch_or_hash: StrictStr | None = None
+
+    @field_validator("branch_or_hash")
+    @classmethod
+    def _ref(cls, value: str | None) -> str | None:
+        return None if value is None else check_ref(value)
+
+
+class RawDependency(_Strict):
+    """One `{apt: NAME}` or `{pip3: NAME}` entry."""
+
+    apt: StrictStr | None = None
+    pip3: StrictStr | None = None
+
+
+class RawProperties(_Strict):
+    """The paper's shape: a map under `properties:`."""
+
+    owns_panda: StrictBool | None = None
+    dependencies: list[RawDependency] = Field(default_factory=list)
+    ros_repositories: list[RawRosRepository] = Field(default_factory=list)
+
+
+class RawFlag(_Strict):
+    """The field's shape: `properties:` is a list of one-key maps such as `- owns_panda: true`."""
+
+    owns_panda: StrictBool | None = None
+
+
+class RawApp(_Strict):
+    name: StrictStr
+    path: StrictStr | None = None
+    description: StrictStr | None = None
+    properties: RawProperties | list[RawFlag] | None = None
+    dependencies: list[RawDependency] = Field(default_factory=list)
+    ros_repositories: list[RawRosRepository] = Field(default_factory=list)
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, value: str) -> str:
+        return check_app_name(value)
+
+    @field_validator("path")
+    @classmethod
+    def _path(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        parts = [p for p in value.strip("/").split("/") if p not in ("", ".")]
+        if value.startswith("/") or ".." in parts or not parts:
+            raise ValueError("path must be a folder inside the repository (relative, no '..')")
+        return "/".join(parts)
+
+
+class RawCatalog(_Strict):
+    apps: list[RawApp] = Field(default_factory=list)
+
+
+class RosRepository(_Strict):
+    owner: str
+    repo: str
+    ref: str | None = Field(default=None, description="branch or commit; None: default branch")
+
+
+class CatalogApp(_Strict):
+    """One app as lpam understands it, whichever shape the catalog used."""
+
+    name: str
+    path: str
+    description: str = ""
+    service: str | None = None
+    owns_panda: bool = False
+    apt: list[str] = Field(default_factory=list)
+    pip3: list[str] = Field(default_factory=list)
+    ros_repositories: list[RosRepository] = Field(default_factory=list)
+
+
+class Catalog(_Strict):
+    apps: list[CatalogApp] = Field(default_factory=list)
+
+    def app(self, name: str) -> CatalogApp | None:
+        return next((a for a in self.apps if a.name == name), None)
+
+
+def normalise(raw: RawCatalog) -> Catalog:
+    """Both wild shapes to the one model; raises ValueError on a repeated app name."""
+    apps: list[CatalogApp] = []
+    seen: set[str] = set()
+    for app in raw.apps:
+        if app.name in seen:
+            raise ValueError(f"app {app.name!r} is listed twice")
+        seen.add(app.name)
+        deps = list(app.dependencies)
+        ros = list(app.ros_repositories)
+        owns = False
+        if isinstance(app.properties, RawProperties):
+            deps += app.properties.dependencies
+            ros += app.properties.ros_repositories
+            owns = bool(app.properties.owns_panda)
+        elif isinstance(app.properties, list):
+            owns = any(bool(flag.owns_panda) for flag in app.properties)
+        for r in ros:
+            check_owner_repo(f"{r.owner}/{r.repo}")
+        apps.append(
+            CatalogApp(
+                name=app.name,
+                path=app.path or app.name,
+                description=app.description or "",
+                owns_panda=owns,
+                apt=[d.apt for d in deps if d.apt],
+                pip3=[d.pip3 for d in deps if d.pip3],
+                ros_repositories=[
+                    RosRepository(owner=r.owner, repo=r.repo, ref=r.branch_or_hash) for r in ros
+                ],
+            )
+        )
+    return Catalog(apps=apps)
+
+
+def with_folder_files(app: CatalogApp, files: dict[str, bytes]) -> CatalogApp:
+    """Fill description and service from the app folder's `description.txt` / `service`."""
+    update: dict[str, Any] = {}
+    if "description.txt" in files and not app.description:
+        lines = files["description.txt"].decode("utf-8", "replace").strip().splitlines()
+        update["description"] = lines[0].strip() if lines else ""
+    if "service" in files:
+        service = files["service"].decode("utf-8", "replace").strip()
+        update["service"] = service or None
+    return app.model_copy(update=update) if update else app

@@ -1,0 +1,155 @@
+"""Desired state, version 1: the document an operator writes (or commits for the Pi to watch).
+
+```yaml
+version: 1
+repositories:
+  - repo: jmscslgroup/libpanda-default-apps   # or url: https://… | git://… | file://… | path
+    ref: main                                  # branch, tag, full or abbreviated commit
+app:                                           # or `app: pandarecord`, or `app: null`
+  name: pandarecord
+  repository: jmscslgroup/libpanda-default-apps  # only when two repositories offer the name
+  params: {RATE_HZ: "10"}
+```
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StrictStr, field_validator, model_validator
+
+from schemas.names import (
+    PARAM_NAME,
+    check_app_name,
+    check_owner_repo,
+    check_ref,
+    check_url,
+    repository_key,
+)
+
+CURRENT_VERSION = 1
+
+
+class RepositorySpec(BaseModel):
+    """One app repository, optionally pinned to a ref."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    repo: StrictStr | None = Field(
+        default=None, description="GitHub shorthand 'owner/name' (https://github.com/owner/name)"
+    )
+    url: StrictStr | None = Field(
+        default=None,
+        description="https://, git://, ssh://, file:// URL or a path (relative to this file)",
+    )
+    ref: StrictStr | None = Field(
+        default=None,
+        description="branch, tag, full or abbreviated commit; absent: the remote's default branch",
+    )
+
+    @field_validator("repo")
+    @classmethod
+    def _repo(cls, value: str | None) -> str | None:
+        return None if value is None else check_owner_repo(value)
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, value: str | None) -> str | None:
+        return None if value is None else check_url(value)
+
+    @field_validator("ref")
+    @classmethod
+    def _ref(cls, value: str | None) -> str | None:
+        return None if value is None else check_ref(value)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> RepositorySpec:
+        if (self.repo is None) == (self.url is None):
+            raise ValueError("give exactly one of 'repo: owner/name' or 'url: …'")
+        return self
+
+    @property
+    def key(self) -> str:
+        """The repository's name in plans, the store and `app.repository`."""
+        if self.repo is not None:
+            return self.repo
+        assert self.url is not None
+        return repository_key(self.url)
+
+    def source(self, base_dir: Path) -> str:
+        """The URL git is given: shorthand expanded, relative paths made absolute."""
+        if self.repo is not None:
+            return f"https://github.com/{self.repo}"
+        assert self.url is not None
+        if "://" in self.url:
+            return self.url
+        path = Path(self.url).expanduser()
+        return str(path if path.is_absolute() else (base_dir / path).resolve())
+
+
+class AppSpec(BaseModel):
+    """The one app the vehicle should have installed and running."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: StrictStr
+    repository: StrictStr | None = Field(
+        default=None, description="key or URL of the repository; needed only when ambiguous"
+    )
+    params: dict[StrictStr, StrictStr] = Field(
+        default_factory=dict, description="environment variables given to the app's scripts"
+    )
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, value: str) -> str:
+        return check_app_name(value)
+
+    @field_validator("params")
+    @classmethod
+    def _params(cls, value: dict[str, str]) -> dict[str, str]:
+        for key, item in value.items():
+            if not PARAM_NAME.match(key) or key.upper().startswith("LPAM_"):
+                raise ValueError(
+                    f"parameter name {key!r} must look like an environment variable "
+                    "(letters, digits, '_') and must not start with LPAM_"
+                )
+            if "\x00" in item:
+                raise ValueError(f"parameter {key!r} contains a NUL byte")
+        return value
+
+
+class DesiredState(BaseModel):
+    """What the operator wants the vehicle to have."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    version: Literal[1] = Field(description="document version; this is version 1")
+    repositories: list[RepositorySpec] = Field(default_factory=list)
+    app: AppSpec | None = None
+
+    @field_validator("app", mode="before")
+    @classmethod
+    def _app_shorthand(cls, value: Any) -> Any:
+        return {"name": value} if isinstance(value, str) else value
+
+    @model_validator(mode="after")
+    def _unique(self) -> DesiredState:
+        seen: dict[str, int] = {}
+        for index, spec in enumerate(self.repositories):
+            for name in {spec.key, spec.url or spec.repo or ""}:
+                if name in seen:
+                    raise ValueError(
+                        f"repositories {seen[name] + 1} and {index + 1} are the same "
+                        f"repository ({name}); list each repository once"
+                    )
+                seen[name] = index
+        return self
+
+    def repository(self, name: str) -> RepositorySpec | None:
+        """Find a repository by key, shorthand or URL."""
+        for spec in self.repositories:
+            if name in (spec.key, spec.repo, spec.url):
+                return spec
+        return None

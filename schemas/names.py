@@ -1,0 +1,72 @@
+"""Rules for the names and strings that end up in paths, URLs and git commands.
+
+They are strict on purpose: an app name becomes a directory, a ref and a URL reach git,
+and the old tool was exploitable through exactly these strings (lpam-legacy.md).
+"""
+
+from __future__ import annotations
+
+import re
+
+APP_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,99}$")
+OWNER_REPO = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}/[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
+PARAM_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,99}$")
+_REF = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_./+-]{0,254}$")
+_SHELL = set(" \t\r\n;|&$`<>()'\"\\*?{}[]!^~")
+URL_SCHEMES = ("https://", "http://", "git://", "ssh://", "file://")
+HEX = re.compile(r"^[0-9a-f]{4,40}$")
+
+
+def check_app_name(value: str) -> str:
+    if ".." in value or not APP_NAME.match(value):
+        raise ValueError(
+            "app names use letters, digits, '_', '-', '.', '+' (no '/', no '..', "
+            "at most 100 characters)"
+        )
+    return value
+
+
+def check_owner_repo(value: str) -> str:
+    if ".." in value or not OWNER_REPO.match(value):
+        raise ValueError("expected 'owner/name', e.g. jmscslgroup/libpanda-default-apps")
+    return value
+
+
+def check_ref(value: str) -> str:
+    bad = (
+        not _REF.match(value)
+        or ".." in value
+        or "//" in value
+        or "@{" in value
+        or value.endswith(("/", ".", ".lock"))
+    )
+    if bad:
+        raise ValueError(
+            "not a valid branch, tag or commit: use letters, digits and '_ . / + -', "
+            "not starting with '-' and without '..'"
+        )
+    return value
+
+
+def check_url(value: str) -> str:
+    if not value or value.startswith("-"):
+        raise ValueError("a URL must not be empty or start with '-'")
+    if any(ch in _SHELL or ord(ch) < 32 for ch in value):
+        raise ValueError("the URL contains a space or a shell metacharacter")
+    if "://" in value and not value.startswith(URL_SCHEMES):
+        raise ValueError("use an https://, http://, git://, ssh:// or file:// URL, or a path")
+    return value
+
+
+def is_hex_commit(ref: str) -> bool:
+    """True for what can only be meant as a commit hash (full or abbreviated)."""
+    return bool(HEX.match(ref))
+
+
+def repository_key(url: str) -> str:
+    """The short name of a repository URL: its last two path components, without `.git`."""
+    path = url.split("://", 1)[-1].rstrip("/")
+    if path.endswith(".git"):
+        path = path[: -len(".git")]
+    parts = [p for p in path.replace(":", "/").split("/") if p]
+    return "/".join(parts[-2:]) if parts else url
