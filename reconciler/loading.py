@@ -31,7 +31,9 @@ class Document:
         """1-based (line, column) of the node at `loc`, or of its nearest existing parent."""
         return locate(self.tree, loc)
 
-    def error(self, message: str, loc: Iterable[str | int] = (), hint: str | None = None) -> ConfigError:
+    def error(
+        self, message: str, loc: Iterable[str | int] = (), hint: str | None = None
+    ) -> ConfigError:
         line, column = self.position(loc)
         return ConfigError(message, path=self.path, line=line, column=column, hint=hint)
 

@@ -64,9 +64,18 @@ def is_hex_commit(ref: str) -> bool:
 
 
 def repository_key(url: str) -> str:
-    """The short name of a repository URL: its last two path components, without `.git`."""
-    path = url.split("://", 1)[-1].rstrip("/")
-    if path.endswith(".git"):
-        path = path[: -len(".git")]
-    parts = [p for p in path.replace(":", "/").split("/") if p]
-    return "/".join(parts[-2:]) if parts else url
+    """The short name of a repository URL, used in plans, the store and `app.repository`.
+
+    A network URL gives its path without the host (`https://github.com/o/n` → `o/n`); a
+    local path or file:// URL gives its last component, so that the same folder named
+    relatively from two places is still the same repository.
+    """
+    path = url.rstrip("/")
+    local = "://" not in path or path.startswith("file://")
+    if not local:
+        path = path.split("://", 1)[1].partition("/")[2]
+    path = path.removesuffix(".git")
+    parts = [p for p in path.split("/") if p not in ("", ".", "..")]
+    if not parts:
+        return url
+    return parts[-1] if local else "/".join(parts[-2:])

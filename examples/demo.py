@@ -1,0 +1,114 @@
+"""The demo: build an example app repository, then drive lpam through a whole life cycle.
+
+Everything happens under `.demo/` (the sandbox root is `.demo/root`): nothing outside the
+checkout is touched and no network is used. Run it with `bash scripts/dev demo`.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from dulwich import porcelain
+from dulwich.repo import Repo
+from ruamel.yaml import YAML
+
+HERE = Path(__file__).resolve().parent
+TOP = HERE.parent
+DEMO = TOP / ".demo"
+ROOT = DEMO / "root"
+REPO = DEMO / "example-apps.git"
+EXAMPLE = TOP / "desired-state.example.yaml"
+LPAM = [sys.executable, "-m", "reconciler"]
+IDENTITY = b"lpam demo <demo@example.org>"
+
+
+def build_repository() -> str:
+    """A real git repository of the example apps: two commits on `main`, a tag v1.0."""
+    work = DEMO / "example-apps-work"
+    shutil.rmtree(work, ignore_errors=True)
+    shutil.copytree(HERE / "example-apps", work)
+    repo = porcelain.init(str(work))
+    files = [str(p) for p in work.rglob("*") if p.is_file() and ".git" not in p.parts]
+    porcelain.add(repo, paths=files)
+    porcelain.commit(repo, message=b"Example apps: can-logger and speed-monitor",
+                     author=IDENTITY, committer=IDENTITY)
+    porcelain.tag_create(repo, b"v1.0", author=IDENTITY, message=b"first release", annotated=True)
+    notes = work / "speed-monitor" / "description.txt"
+    notes.write_text("Prints the vehicle speed (km/h) from CAN message 0xB4\n")
+    porcelain.add(repo, paths=[str(notes)])
+    head = porcelain.commit(repo, message=b"speed-monitor: say the unit", author=IDENTITY,
+                            committer=IDENTITY)
+    if Repo(str(work)).refs.read_ref(b"HEAD") != b"ref: refs/heads/main":
+        Repo(str(work)).refs.set_symbolic_ref(b"HEAD", b"refs/heads/main")
+        Repo(str(work)).refs[b"refs/heads/main"] = head
+    shutil.rmtree(REPO, ignore_errors=True)
+    with open(os.devnull, "wb") as quiet:
+        porcelain.clone(str(work), str(REPO), bare=True, errstream=quiet)
+    shutil.rmtree(work)
+    return head.decode()
+
+
+def lpam(*args: str, check: bool = True) -> int:
+    shown = " ".join(["lpam", *args]).replace(str(TOP) + "/", "")
+    print(f"\n$ {shown}", flush=True)
+    env = dict(os.environ, LPAM_ROOT=str(ROOT))
+    code = subprocess.call([*LPAM, *args], cwd=TOP, env=env)
+    if check and code not in (0, 2):
+        raise SystemExit(f"demo failed: `{shown}` exited {code}")
+    return code
+
+
+def switched_desired_state(app: str) -> Path:
+    """The example desired state with another app, comments kept (round-trip YAML)."""
+    yaml = YAML()
+    data = yaml.load(EXAMPLE.read_text())
+    data["app"]["name"] = app
+    data["app"]["params"] = {"SPEED_UNIT": "km/h"}
+    data["repositories"][0]["url"] = REPO.name  # relative to the new file's folder
+    path = DEMO / "desired-state.switched.yaml"
+    with path.open("w") as out:
+        yaml.dump(data, out)
+    return path
+
+
+def main() -> int:
+    shutil.rmtree(ROOT, ignore_errors=True)
+    DEMO.mkdir(exist_ok=True)
+    print("== 1. Build the example app repository (.demo/example-apps.git)")
+    print(f"   main is at {build_repository()[:12]}; tag v1.0 on the commit before")
+    print("\n== 2. Validate and preview the example desired state")
+    lpam("validate", str(EXAMPLE))
+    lpam("plan", "-f", str(EXAMPLE))
+    print("\n== 3. Apply it: clone, stage can-logger, install and start it")
+    lpam("apply", "-f", str(EXAMPLE), "--yes")
+    lpam("status")
+    print("\n== 4. Plan again: nothing to do (exit code 0 with --detailed-exitcode)")
+    code = lpam("plan", "-f", str(EXAMPLE), "--detailed-exitcode")
+    print(f"   (exit code {code}: 0 means no changes)")
+    print("\n== 5. Switch the app: can-logger is stopped and uninstalled before speed-monitor")
+    other = switched_desired_state("speed-monitor")
+    lpam("plan", "-f", str(other))
+    started = time.monotonic()
+    lpam("apply", "-f", str(other), "--yes")
+    print(f"   (apply took {time.monotonic() - started:.2f} s)")
+    lpam("status")
+    running = sorted(p.name for p in (ROOT / "run" / "lpam-demo").glob("*.running"))
+    print(f"\n   running markers under the sandbox root: {running}")
+    if running != ["speed-monitor.running"]:
+        raise SystemExit("demo failed: expected exactly speed-monitor to run")
+    print("\n== 6. A bad desired state is refused with file:line:column; nothing changes")
+    bad = DEMO / "bad.yaml"
+    bad.write_text("version: 1\nrepositories:\n  - url: x\n    reff: main\napp: null\n")
+    lpam("plan", "-f", str(bad), check=False)
+    lpam("status", "--json")
+    print("\nDemo complete. The sandbox root is .demo/root; rerun to start afresh.")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

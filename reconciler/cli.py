@@ -1,0 +1,253 @@
+"""`lpam`: the only place that prints and exits.
+
+Maps every LpamError to one short message (file:line:column for documents) and exit 1;
+anything unexpected is a bug: its traceback goes to `<root>/var/log/lpam/debug.log`, and
+the user gets one line pointing there. Heavy libraries (dulwich, networkx) are imported
+only by the commands that need them, so `lpam --version` and `lpam status` start fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import traceback
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from reconciler import __version__
+from reconciler.errors import ConfigError, LpamError
+from reconciler.layout import Layout
+
+EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
+
+
+def now() -> datetime:
+    return datetime.now(UTC)
+
+
+def _parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument(
+        "--root", default=argparse.SUPPRESS,
+        help="put every path lpam touches under ROOT (default: $LPAM_ROOT or /)",
+    )
+    parser = argparse.ArgumentParser(
+        prog="lpam", parents=[common],
+        description="Make this vehicle's apps match a declared desired state.",
+    )
+    parser.add_argument("--version", action="version", version=f"lpam {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    plan = sub.add_parser("plan", parents=[common], help="show what apply would change")
+    plan.add_argument("-f", "--file", type=Path, help="desired state (default: under --root)")
+    plan.add_argument("--json", action="store_true", help="print the plan as JSON")
+    plan.add_argument("--out", type=Path, help="save the plan for `lpam apply PLANFILE`")
+    plan.add_argument("--detailed-exitcode", action="store_true",
+                      help="exit 0 without changes, 2 with changes, 1 on error")
+
+    apply = sub.add_parser("apply", parents=[common], help="make the machine match")
+    apply.add_argument("planfile", nargs="?", type=Path, help="a plan saved by plan --out")
+    apply.add_argument("-f", "--file", type=Path, help="desired state (default: under --root)")
+    apply.add_argument("--yes", action="store_true", help="apply without asking")
+    apply.add_argument("--lock-timeout", type=float, default=10.0, metavar="SECONDS",
+                       help="wait this long for another apply to finish (default 10)")
+    apply.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
+                       help="kill an app script running longer than this (default 600)")
+
+    status = sub.add_parser("status", parents=[common], help="show repositories and apps")
+    status.add_argument("--json", action="store_true")
+
+    validate = sub.add_parser("validate", parents=[common],
+                              help="check a desired state, a catalog or an app repository")
+    validate.add_argument("path", type=Path)
+
+    imp = sub.add_parser("import-lpam", parents=[common],
+                         help="write a desired state equivalent to an LPAM installation")
+    imp.add_argument("etc_dir", nargs="?", type=Path, default=Path("/etc/libpanda.d"))
+    imp.add_argument("-o", "--output", type=Path, help="write here instead of printing")
+    return parser
+
+
+def _layout(args: argparse.Namespace) -> Layout:
+    root = getattr(args, "root", None) or os.environ.get("LPAM_ROOT") or "/"
+    return Layout(Path(root).resolve())
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    layout = _layout(args)
+    try:
+        return int(COMMANDS[args.command](args, layout))
+    except LpamError as exc:
+        print(exc.render(), file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("interrupted; run `lpam apply` again to resume", file=sys.stderr)
+        return 130
+    except Exception:  # a bug: keep the traceback away from the user, but keep it
+        log = _debug_log(layout)
+        print(f"error: internal error in lpam {__version__}; details in {log}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+def _debug_log(layout: Layout) -> str:
+    try:
+        layout.logs.mkdir(parents=True, exist_ok=True)
+        with layout.debug_log.open("a", encoding="utf-8") as out:
+            out.write(f"--- {now().isoformat()} lpam {__version__} {sys.argv}\n")
+            out.write(traceback.format_exc())
+        return str(layout.debug_log)
+    except OSError:
+        return "(the debug log could not be written)"
+
+
+def _desired_path(args: argparse.Namespace, layout: Layout) -> Path:
+    return Path(args.file) if args.file else layout.desired_state
+
+
+def _prepare(layout: Layout, path: Path, *, fetch: bool) -> Any:
+    """Load, resolve and observe; returns (store, plan)."""
+    from reconciler.adapters.git import GitStore
+    from reconciler.documents import load_desired
+    from reconciler.observe.machine import observe
+    from reconciler.observe.targets import resolve
+    from reconciler.planning.plan import make_plan
+
+    desired = load_desired(path)
+    store = GitStore(layout)
+    targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch)
+    observed = observe(layout, store, targets)
+    if observed.interrupted:
+        print(f"note: the last apply was interrupted during {', '.join(observed.interrupted)}; "
+              "the next apply runs that step again", file=sys.stderr)
+    plan = make_plan(targets, observed, now=now(), lpam_version=__version__)
+    return store, plan
+
+
+def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.planning.render import render
+
+    _, plan = _prepare(layout, _desired_path(args, layout), fetch=args.out is not None)
+    if args.out is not None:
+        from reconciler.atomic import write_atomic
+
+        write_atomic(args.out, plan.model_dump_json(indent=2) + "\n")
+    if args.json:
+        print(plan.model_dump_json(indent=2))
+    else:
+        print(render(plan))
+        if args.out is not None:
+            print(f"\nSaved the plan to {args.out}; apply it with `lpam apply {args.out}`.")
+    if args.detailed_exitcode and plan.has_changes:
+        return EXIT_CHANGES
+    return EXIT_OK
+
+
+def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.execution.lock import apply_lock
+
+    if args.planfile is not None and args.file is not None:
+        raise LpamError("give either a plan file or -f FILE, not both")
+    if args.planfile is None:
+        from reconciler.documents import load_desired
+
+        load_desired(_desired_path(args, layout))  # reject bad input before taking the lock
+    with apply_lock(layout, timeout=args.lock_timeout):
+        if args.planfile is not None:
+            return _apply_saved(args, layout)
+        return _apply_desired(args, layout)
+
+
+def _apply_saved(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.adapters.git import GitStore
+    from reconciler.documents import load_plan
+    from reconciler.planning.plan import check_plan
+    from reconciler.state import read_record
+
+    plan = load_plan(args.planfile)
+    record = read_record(layout)
+    check_plan(plan, lineage=record.lineage, serial=record.serial, source=str(args.planfile))
+    return _execute(args, layout, GitStore(layout), plan)
+
+
+def _apply_desired(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.planning.render import render
+
+    store, plan = _prepare(layout, _desired_path(args, layout), fetch=True)
+    print(render(plan))
+    if not plan.steps:
+        return EXIT_OK
+    if not args.yes:
+        if not sys.stdin.isatty():
+            raise LpamError("apply needs confirmation", hint="pass --yes to apply without asking")
+        if input("\nApply these changes? Only 'yes' is accepted: ").strip() != "yes":
+            print("Apply cancelled; nothing was changed.")
+            return EXIT_ERROR
+    return _execute(args, layout, store, plan)
+
+
+def _execute(args: argparse.Namespace, layout: Layout, store: Any, plan: Any) -> int:
+    from reconciler.adapters.scripts import ScriptRunner
+    from reconciler.execution.executor import execute
+    from reconciler.execution.steps import Context
+    from reconciler.state import read_record
+
+    started = now()
+    log = layout.logs / f"apply-{started.strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
+    ctx = Context(
+        layout=layout, store=store, clock=now, record=read_record(layout),
+        scripts=ScriptRunner(root=layout.root, log=log, timeout=args.script_timeout),
+    )
+    print()
+    execute(plan, ctx, progress=print)
+    app = ctx.record.app
+    where = f"{app.name} {'running' if app.running else 'installed'}" if app else "no app"
+    print(f"\nApply complete: {len(plan.steps)} steps; {where}. Script output: {log}")
+    return EXIT_OK
+
+
+def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler import status
+
+    if args.json:
+        print(json.dumps(status.as_json(layout), indent=2))
+    else:
+        print(status.as_table(layout))
+    return EXIT_OK
+
+
+def cmd_validate(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.validation import validate
+
+    print(validate(Path(args.path)))
+    return EXIT_OK
+
+
+def cmd_import(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.legacy import import_lpam
+
+    text = import_lpam(Path(args.etc_dir))
+    if args.output is None:
+        print(text, end="")
+        return EXIT_OK
+    from reconciler.atomic import write_atomic
+
+    if args.output.exists():
+        raise ConfigError("already exists; lpam will not overwrite it", path=args.output,
+                          hint="choose another -o FILE or move the existing file away")
+    write_atomic(args.output, text)
+    print(f"Wrote {args.output}; review it, then `lpam plan -f {args.output}`.")
+    return EXIT_OK
+
+
+COMMANDS = {
+    "plan": cmd_plan,
+    "apply": cmd_apply,
+    "status": cmd_status,
+    "validate": cmd_validate,
+    "import-lpam": cmd_import,
+}

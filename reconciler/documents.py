@@ -1,0 +1,123 @@
+"""Documents from disk to validated models, with every fault at file:line:column.
+
+load → migrate → validate: the path every desired state, catalog and saved plan takes.
+Pydantic's error locations are mapped back onto the YAML tree kept by loading.py.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ValidationError
+
+from reconciler.errors import ConfigError
+from reconciler.loading import Document, load
+from schemas.catalog import Catalog, RawCatalog, normalise
+from schemas.desired import DesiredState
+from schemas.plan import Plan
+
+_HINTS = {
+    "extra_forbidden": "remove it, or check its spelling against desired-state.example.yaml",
+    "missing": "add it",
+    "string_type": "quote the value to make it a string",
+    "literal_error": "use one of the values shown",
+}
+
+
+def validation_error(doc: Document, exc: ValidationError, what: str) -> ConfigError:
+    """The first pydantic complaint as a ConfigError at the offending node."""
+    error = exc.errors()[0]
+    loc = [p for p in error["loc"] if not (isinstance(p, str) and "[" in p)]
+    # Pydantic inserts union-member names ('str', 'function-after[…]') into locations.
+    loc = [p for p in loc if not (isinstance(p, str) and p in {"str", "dict", "list"})]
+    field = ".".join(str(p) for p in loc) or what
+    message = str(error["msg"]).removeprefix("Value error, ")
+    if error["type"] == "extra_forbidden":
+        message = f"unknown key {loc[-1]!r}" if loc else "unknown key"
+    elif error["type"] == "missing":
+        message = f"{field} is required"
+    else:
+        message = f"{field}: {message}"
+    return doc.error(message, loc, _HINTS.get(error["type"]))
+
+
+def _validate(doc: Document, data: Any, model: type[BaseModel], what: str) -> Any:
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise validation_error(doc, exc, what) from None
+
+
+def load_desired(path: Path) -> DesiredState:
+    """A desired-state file of any supported version, as the current model."""
+    from migrations import upgrade
+
+    doc = load(path)
+    data = upgrade("desired-state", doc.data, path=path)
+    _check_duplicate_repositories(doc, data)
+    state: DesiredState = _validate(doc, data, DesiredState, "desired state")
+    return state
+
+
+def _check_duplicate_repositories(doc: Document, data: dict[str, Any]) -> None:
+    seen: dict[str, int] = {}
+    repos = data.get("repositories")
+    if not isinstance(repos, list):
+        return
+    for index, item in enumerate(repos):
+        if not isinstance(item, dict):
+            continue
+        name = item.get("repo") or item.get("url")
+        if not isinstance(name, str):
+            continue
+        name = name.removesuffix("/").removesuffix(".git")
+        if name in seen:
+            raise doc.error(
+                f"repository {name} is listed twice (first as item {seen[name] + 1})",
+                ["repositories", index],
+                "list each repository once; remove one of the two entries",
+            )
+        seen[name] = index
+
+
+def parse_catalog(path: Path, text: str) -> Catalog:
+    """An app catalog (`libpanda-apps.yaml`), either wild shape, normalised."""
+    doc = load(path, text)
+    if not isinstance(doc.data, dict):
+        raise doc.error("an app catalog is a mapping with an `apps:` list", [],
+                        "see reference/libpanda-default-apps.libpanda-apps.yaml")
+    raw: RawCatalog = _validate(doc, doc.data, RawCatalog, "catalog")
+    try:
+        return normalise(raw)
+    except ValueError as exc:
+        raise doc.error(str(exc), ["apps"]) from None
+
+
+def load_plan(path: Path) -> Plan:
+    """A saved plan file (`lpam plan --out`), version-checked and validated."""
+    from migrations import upgrade
+    from reconciler.loading import read_text
+
+    text = read_text(path)
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(
+            f"not a plan file: {exc.msg}", path=path, line=exc.lineno, column=exc.colno,
+            hint="pass a file written by `lpam plan --out FILE`, or use -f for a desired state",
+        ) from None
+    if isinstance(data, dict) and "format_version" in data:
+        data["version"] = data.pop("format_version")
+    data = upgrade("plan", data, path=path)
+    data["format_version"] = data.pop("version")
+    try:
+        return Plan.model_validate(data)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        where = ".".join(str(p) for p in error["loc"])
+        raise ConfigError(
+            f"invalid plan at {where}: {error['msg']}", path=path,
+            hint="make a new plan with `lpam plan --out FILE`",
+        ) from None

@@ -1,0 +1,51 @@
+"""Read-only probes of the machine: the state record, the repository store, the staged
+generations and the journal of an interrupted apply. Nothing here writes.
+
+Local edits are only looked for in checkouts the plan may move or remove: scanning every
+working tree on every plan would make a no-op plan pay for what it does not need.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from reconciler.execution.journal import interrupted_steps
+from reconciler.layout import Layout
+from reconciler.planning.model import Observed, RepoObserved, Targets
+from reconciler.state import read_record
+
+if TYPE_CHECKING:
+    from reconciler.adapters.git import GitStore
+
+
+def observe(layout: Layout, store: GitStore, targets: Targets) -> Observed:
+    record = read_record(layout)
+    wanted = {t.key: t for t in targets.repositories}
+    keys = sorted(set(wanted) | {r.key for r in record.repositories})
+    repositories: dict[str, RepoObserved] = {}
+    for key in keys:
+        present = layout.repository_dir(key).is_dir()
+        head = store.head(key) if present else None
+        target = wanted.get(key)
+        may_move = target is None or target.commit is None or target.commit != head
+        edits = tuple(store.local_edits(key)) if present and may_move else ()
+        repositories[key] = RepoObserved(
+            key=key, present=present, head=head,
+            origin=store.origin_url(key) if present else None, local_edits=edits,
+        )
+    return Observed(
+        record=record,
+        repositories=repositories,
+        generations=frozenset(_generations(layout)),
+        interrupted=tuple(interrupted_steps(layout)),
+    )
+
+
+def _generations(layout: Layout) -> list[str]:
+    if not layout.generations.is_dir():
+        return []
+    return [
+        f"{app.name}/{gen.name}"
+        for app in layout.generations.iterdir() if app.is_dir()
+        for gen in app.iterdir() if gen.is_dir() and not gen.name.startswith(".")
+    ]

@@ -1,0 +1,143 @@
+"""Resolve the desired state to commits: which commit each repository should be at, and
+where the desired app comes from.
+
+This is the only probe that may use the network, and only when it must: a ref that is a
+commit hash already in the store is resolved locally (a pinned no-op plan opens no
+connection); a branch or tag is looked up with one ls-remote. With `fetch=True` (apply,
+`plan --out`), commits not yet in the store are fetched first, so the plan is exact and
+all network work is done before anything on the machine changes.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from reconciler.documents import parse_catalog
+from reconciler.errors import CatalogError, RefNotFoundError
+from reconciler.planning.model import AppTarget, RepoTarget, Targets, short
+from schemas.catalog import CATALOG_FILE, Catalog
+from schemas.desired import DesiredState, RepositorySpec
+from schemas.names import is_hex_commit
+
+if TYPE_CHECKING:
+    from reconciler.adapters.git import GitStore
+
+FETCH_WORKERS = 4
+
+
+def resolve(desired: DesiredState, *, base_dir: Path, store: GitStore, fetch: bool) -> Targets:
+    """Desired state → Targets; raises before any change if a ref does not exist."""
+    specs = desired.repositories
+    if len(specs) > 1:
+        with ThreadPoolExecutor(max_workers=min(FETCH_WORKERS, len(specs))) as pool:
+            repos = list(pool.map(lambda s: _resolve_repo(s, base_dir, store, fetch), specs))
+    else:
+        repos = [_resolve_repo(s, base_dir, store, fetch) for s in specs]
+    app = _resolve_app(desired, repos, store) if desired.app is not None else None
+    return Targets(repositories=tuple(repos), app=app)
+
+
+def _resolve_repo(spec: RepositorySpec, base_dir: Path, store: GitStore, fetch: bool) -> RepoTarget:
+    url, key, ref = spec.source(base_dir), spec.key, spec.ref
+    same_origin = store.origin_url(key) == url
+    commit: str | None = None
+    if ref is not None and is_hex_commit(ref):
+        if same_origin:
+            commit = store.resolve_local(key, ref)
+        if commit is None and fetch:
+            store.fetch(key, url)
+            commit = store.resolve_local(key, ref)
+            if commit is None:
+                raise RefNotFoundError(
+                    f"commit {ref} not found in {url}",
+                    hint="check the hash (is it pushed?); nothing on the machine was changed",
+                )
+        elif commit is None and len(ref) == 40:
+            commit = ref
+    else:
+        remote = store.ls_remote(url)
+        commit = remote.resolve(ref)
+        if commit is None:
+            heads = sorted(r.removeprefix("refs/heads/") for r in remote.refs
+                           if r.startswith("refs/heads/"))
+            tags = sorted(r.removeprefix("refs/tags/") for r in remote.refs
+                          if r.startswith("refs/tags/"))
+            what = f"ref {ref!r}" if ref else "a default branch"
+            raise RefNotFoundError(
+                f"{what} not found in {url} (branches: {', '.join(heads) or 'none'}; "
+                f"tags: {', '.join(tags) or 'none'})",
+                hint="fix `ref:` in the desired state; nothing on the machine was changed",
+            )
+        if fetch and not (same_origin and store.has_commit(key, commit)):
+            store.fetch(key, url)
+    return RepoTarget(key=key, url=url, ref=ref, commit=commit)
+
+
+def _catalog(store: GitStore, repo: RepoTarget) -> Catalog | None:
+    """The repository's app catalog at its target commit; None when not fetched yet."""
+    if repo.commit is None or store.origin_url(repo.key) != repo.url:
+        return None
+    if not store.has_commit(repo.key, repo.commit):
+        return None
+    data = store.read_file(repo.key, repo.commit, CATALOG_FILE)
+    if data is None:
+        return Catalog()
+    label = Path(f"{repo.key}@{short(repo.commit)}/{CATALOG_FILE}")
+    return parse_catalog(label, data.decode("utf-8", "replace"))
+
+
+def _resolve_app(desired: DesiredState, repos: list[RepoTarget], store: GitStore) -> AppTarget:
+    spec = desired.app
+    assert spec is not None
+    candidates = repos
+    if spec.repository is not None:
+        wanted = desired.repository(spec.repository)
+        if wanted is None:
+            raise CatalogError(
+                f"app.repository {spec.repository!r} is not one of the desired repositories "
+                f"({', '.join(r.key for r in repos) or 'none'})",
+                hint="use the key (owner/name) or URL of a listed repository",
+            )
+        candidates = [r for r in repos if r.key == wanted.key]
+    found: list[tuple[RepoTarget, str]] = []
+    unknown: list[RepoTarget] = []
+    offered: list[str] = []
+    for repo in candidates:
+        catalog = _catalog(store, repo)
+        if catalog is None:
+            unknown.append(repo)
+            continue
+        app = catalog.app(spec.name)
+        offered += [f"{a.name} ({repo.key})" for a in catalog.apps]
+        if app is not None:
+            found.append((repo, app.path))
+    if len(found) > 1:
+        raise CatalogError(
+            f"app {spec.name} is offered by {' and '.join(r.key for r, _ in found)}",
+            hint="say which one with `app: {name: …, repository: owner/name}`",
+        )
+    if found:
+        repo, path = found[0]
+        assert repo.commit is not None
+        tree = store.folder_tree(repo.key, repo.commit, path)
+        if tree is None:
+            raise CatalogError(
+                f"{repo.key}@{short(repo.commit)}: the catalog lists app {spec.name} in folder "
+                f"{path!r}, but that folder does not exist",
+                hint="fix the repository's libpanda-apps.yaml or pin another commit",
+            )
+        return AppTarget(name=spec.name, repository=repo.key, commit=repo.commit, path=path,
+                         tree=tree, params=dict(spec.params))
+    if unknown:
+        repo = unknown[0] if len(unknown) == 1 else RepoTarget(
+            "(known after fetch)", "", None, None
+        )
+        return AppTarget(name=spec.name, repository=repo.key, commit=repo.commit, path=None,
+                         tree=None, params=dict(spec.params))
+    raise CatalogError(
+        f"app {spec.name} is not in the catalog of any desired repository "
+        f"(available: {', '.join(offered) or 'none'})",
+        hint="check the app name, or add the repository that offers it",
+    )

@@ -1,0 +1,160 @@
+"""Desired (resolved) against observed: a list of changes, each with a human reason.
+
+Pure: no I/O. The diff returns data and never acts (Terraform's plans, kopf's DiffItem);
+every no-op says why nothing needs doing, so a user reading the plan can trust it.
+"""
+
+from __future__ import annotations
+
+from reconciler.planning.model import AppTarget, Observed, RepoTarget, Targets, short
+from schemas.names import is_hex_commit
+from schemas.plan import Action, Change
+from schemas.record import AppRecord, RepositoryRecord
+
+
+def diff(targets: Targets, observed: Observed) -> list[Change]:
+    """Every repository (desired first, then removed ones) and the app, in a stable order."""
+    changes = [_repository(t, observed) for t in targets.repositories]
+    wanted = {t.key for t in targets.repositories}
+    changes += [
+        Change(
+            address=f"repository.{rec.key}",
+            action=Action.DELETE,
+            reason="no longer in the desired state",
+            before=_repo_fields(rec),
+            warnings=_edits_warning(observed, rec.key, "removing it will be refused"),
+        )
+        for rec in sorted(observed.record.repositories, key=lambda r: r.key)
+        if rec.key not in wanted
+    ]
+    changes.append(_app(targets.app, observed.record.app))
+    return changes
+
+
+def _repo_fields(rec: RepositoryRecord) -> dict[str, str | bool | dict[str, str] | None]:
+    return {"url": rec.url, "ref": rec.ref, "commit": rec.commit}
+
+
+def _edits_warning(observed: Observed, key: str, consequence: str) -> list[str]:
+    obs = observed.repositories.get(key)
+    if obs is None or not obs.local_edits:
+        return []
+    shown = ", ".join(obs.local_edits[:5]) + (" …" if len(obs.local_edits) > 5 else "")
+    return [f"local edits in the checkout ({shown}): {consequence}"]
+
+
+def _describe_ref(ref: str | None) -> str:
+    if ref is None:
+        return "default branch"
+    return f"commit {ref}" if is_hex_commit(ref) else f"ref {ref}"
+
+
+def _repository(t: RepoTarget, observed: Observed) -> Change:
+    rec = observed.record.repository(t.key)
+    obs = observed.repositories.get(t.key)
+    after: dict[str, str | bool | dict[str, str] | None] = {
+        "url": t.url, "ref": t.ref, "commit": t.commit,
+    }
+    ref = _describe_ref(t.ref)
+    blocked = "the update will be refused until they are committed elsewhere or removed"
+    if rec is None:
+        return Change(
+            address=f"repository.{t.key}", action=Action.CREATE, after=after,
+            reason=f"new repository, {ref} at {short(t.commit)}",
+            warnings=_edits_warning(observed, t.key, blocked),
+        )
+    before = _repo_fields(rec)
+    if rec.url != t.url:
+        return Change(
+            address=f"repository.{t.key}", action=Action.REPLACE, before=before, after=after,
+            reason=f"URL changed from {rec.url} to {t.url}: cloned anew",
+            warnings=_edits_warning(observed, t.key, blocked),
+        )
+    head = obs.head if obs is not None and obs.present else None
+    if head is None:
+        reason = "checkout is missing from the repository store: restored"
+    elif t.commit is None:
+        reason = f"{ref}: commit known after fetch"
+    elif head != t.commit and rec.commit == t.commit:
+        reason = f"checkout was moved outside lpam to {short(head)}: restored to {short(t.commit)}"
+    elif head != t.commit:
+        if t.ref is not None and not is_hex_commit(t.ref) and t.ref == rec.ref:
+            reason = f"{ref} moved from {short(rec.commit)} to {short(t.commit)}"
+        else:
+            reason = f"{ref} at {short(t.commit)} (was {short(rec.commit)})"
+    elif rec.ref != t.ref:
+        reason = f"ref changed from {rec.ref or 'default branch'} to {t.ref or 'default branch'}"
+        reason += f" (same commit {short(t.commit)})"
+    else:
+        return Change(
+            address=f"repository.{t.key}", action=Action.NOOP, before=before, after=after,
+            reason=f"{ref} at {short(t.commit)}, already checked out",
+            warnings=_edits_warning(observed, t.key, "left as they are"),
+        )
+    return Change(
+        address=f"repository.{t.key}", action=Action.UPDATE, before=before, after=after,
+        reason=reason, warnings=_edits_warning(observed, t.key, blocked),
+    )
+
+
+def _app_fields(
+    name: str, repository: str, commit: str | None, params: dict[str, str], running: bool | None
+) -> dict[str, str | bool | dict[str, str] | None]:
+    fields: dict[str, str | bool | dict[str, str] | None] = {
+        "name": name, "repository": repository, "commit": commit, "params": dict(params),
+    }
+    if running is not None:
+        fields["running"] = running
+    return fields
+
+
+def _app(t: AppTarget | None, rec: AppRecord | None) -> Change:
+    before = (
+        _app_fields(rec.name, rec.repository, rec.commit, rec.params, rec.running) if rec else None
+    )
+    after = _app_fields(t.name, t.repository, t.commit, t.params, None) if t else None
+    if t is None and rec is None:
+        return Change(address="app", action=Action.NOOP, reason="no app desired, none installed")
+    if t is None:
+        assert rec is not None
+        return Change(
+            address="app", action=Action.DELETE, before=before,
+            reason=f"app {rec.name} is no longer desired (app: null): stopped and uninstalled",
+        )
+    if rec is None:
+        return Change(
+            address="app", action=Action.CREATE, after=after,
+            reason=f"install {t.name} from {t.repository} at {short(t.commit)}",
+        )
+    if (rec.name, rec.repository) != (t.name, t.repository):
+        return Change(
+            address="app", action=Action.REPLACE, before=before, after=after,
+            reason=f"switch from {rec.name} to {t.name}: {rec.name} is stopped and "
+            f"uninstalled before {t.name} is installed",
+        )
+    same_params = rec.params == t.params
+    if t.tree is None:
+        unchanged = t.commit == rec.commit and same_params
+        detail = "folder compared after fetch"
+    else:
+        unchanged = t.tree == rec.tree and same_params
+        detail = f"folder {rec.tree[:12]} → {t.tree[:12]}"
+    if unchanged:
+        if rec.running:
+            moved = "" if t.commit == rec.commit else f"; repository now at {short(t.commit)}"
+            return Change(
+                address="app", action=Action.NOOP, before=before, after=after,
+                reason=f"{t.name} installed and running, app folder unchanged{moved}",
+            )
+        return Change(
+            address="app", action=Action.UPDATE, before=before, after=after,
+            reason=f"{t.name} is installed but not running: started",
+        )
+    what = [] if same_params else ["parameters changed"]
+    if t.tree is None or t.tree != rec.tree:
+        what.insert(0, f"new version ({detail})")
+    return Change(
+        address="app", action=Action.UPDATE, before=before, after=after,
+        reason=f"{t.name}: {', '.join(what)}; the old generation is stopped and uninstalled "
+        "before the new one is installed",
+    )

@@ -1,0 +1,122 @@
+"""From changes to an ordered list of steps, through a networkx DAG.
+
+The ordering rules are the safety rules of the vehicle, written as edges:
+every preparation step (check out, stage a generation) precedes every cutover step, so
+network and copying happen while the old app still runs; the cutover is a chain
+stop old → uninstall old → install new → start new, so two apps never hold the CAN
+hardware at once; cleanup (removing repositories) comes last. A cycle is a bug in these
+rules and is reported by name rather than silently broken.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable
+
+import networkx as nx
+
+from reconciler.errors import PlanError
+from reconciler.planning.model import AppTarget, Observed, Targets
+from schemas.plan import Action, Change, Phase, Step, StepKind
+
+_PHASE_ORDER = {Phase.PREPARE: 0, Phase.CUTOVER: 1, Phase.CLEANUP: 2}
+
+
+def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> list[Step]:
+    """The steps that close the changes, in an order that respects the graph."""
+    by_address = {c.address: c for c in changes}
+    steps: list[Step] = []
+    for t in targets.repositories:
+        change = by_address.get(f"repository.{t.key}")
+        if change is not None and change.action is not Action.NOOP:
+            steps.append(
+                _step(StepKind.CHECKOUT, Phase.PREPARE, t.key,
+                      key=t.key, url=t.url, ref=t.ref, commit=t.commit)
+            )
+    for change in changes:
+        if change.action is Action.DELETE and change.address.startswith("repository."):
+            key = change.address.removeprefix("repository.")
+            steps.append(_step(StepKind.REMOVE, Phase.CLEANUP, key, key=key))
+    app_change = by_address.get("app")
+    if app_change is not None and app_change.action is not Action.NOOP:
+        steps += _app_steps(app_change, targets.app, observed)
+    return order(steps)
+
+
+def _step(kind: StepKind, phase: Phase, target: str, **args: str | dict[str, str] | None) -> Step:
+    return Step(id=f"{kind.value}:{target}", kind=kind, phase=phase, args=args)
+
+
+def _app_steps(change: Change, new: AppTarget | None, observed: Observed) -> list[Step]:
+    old = observed.record.app
+    steps: list[Step] = []
+    start_only = (
+        new is not None and old is not None and change.action is Action.UPDATE
+        and (old.name, old.repository, old.params) == (new.name, new.repository, new.params)
+        and (new.tree == old.tree or (new.tree is None and new.commit == old.commit))
+    )
+    if start_only:
+        assert old is not None
+        return [_step(StepKind.START, Phase.CUTOVER, f"{old.name}@{old.generation}",
+                      app=old.name, generation=old.generation)]
+    new_gen = new.generation if new is not None else None
+    if new is not None:
+        gen = new_gen or "(known after fetch)"
+        if f"{new.name}/{gen}" not in observed.generations:
+            steps.append(_step(
+                StepKind.STAGE, Phase.PREPARE, f"{new.name}@{gen}", app=new.name,
+                repository=new.repository, commit=new.commit, path=new.path, tree=new.tree,
+                generation=gen,
+            ))
+    if old is not None:
+        target = f"{old.name}@{old.generation}"
+        if old.running:
+            steps.append(_step(StepKind.STOP, Phase.CUTOVER, target,
+                               app=old.name, generation=old.generation))
+        steps.append(_step(StepKind.UNINSTALL, Phase.CUTOVER, target,
+                           app=old.name, generation=old.generation))
+    if new is not None:
+        gen = new_gen or "(known after fetch)"
+        target = f"{new.name}@{gen}"
+        common: dict[str, str | dict[str, str] | None] = {
+            "app": new.name, "generation": gen, "repository": new.repository,
+            "commit": new.commit, "path": new.path, "tree": new.tree,
+        }
+        steps.append(_step(StepKind.INSTALL, Phase.CUTOVER, target, params=new.params, **common))
+        steps.append(_step(StepKind.START, Phase.CUTOVER, target, **common))
+    return steps
+
+
+def order(steps: Iterable[Step]) -> list[Step]:
+    """Topologically sort the steps under the phase and cutover rules; stable for equal ranks."""
+    steps = list(steps)
+    index = {s.id: i for i, s in enumerate(steps)}
+    if len(index) != len(steps):
+        raise PlanError("two steps of the plan have the same id; this is a bug in lpam")
+    graph = nx.DiGraph()
+    graph.add_nodes_from(index)
+    for a in steps:
+        for b in steps:
+            if _PHASE_ORDER[a.phase] < _PHASE_ORDER[b.phase]:
+                graph.add_edge(a.id, b.id)
+    cutover = [s.id for s in steps if s.phase is Phase.CUTOVER]
+    graph.add_edges_from(itertools.pairwise(cutover))
+    for s in steps:
+        graph.add_edges_from((need, s.id) for need in s.needs)
+    return sort_graph(graph, {s.id: s for s in steps}, index)
+
+
+def sort_graph(graph: nx.DiGraph, steps: dict[str, Step], index: dict[str, int]) -> list[Step]:
+    try:
+        ordered = nx.lexicographical_topological_sort(graph, key=lambda n: index.get(n, 0))
+        ids = list(ordered)
+    except nx.NetworkXUnfeasible:
+        cycle = " → ".join(f"{a}" for a, _ in nx.find_cycle(graph))
+        raise PlanError(
+            f"the steps of the plan form a cycle: {cycle}",
+            hint="this is a bug in lpam's ordering rules; please report it with the plan",
+        ) from None
+    missing = [n for n in ids if n not in steps]
+    if missing:
+        raise PlanError(f"a step needs {missing[0]}, which is not in the plan")
+    return [steps[n] for n in ids]

@@ -1,0 +1,73 @@
+"""Assemble, seal and check a plan: the only input `apply` executes.
+
+The fingerprint covers what drives behaviour (the record it was made against and the
+steps), never display text, so a reworded reason does not invalidate a plan while an
+edited step does.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from datetime import datetime
+
+from reconciler.errors import PlanError, StalePlanError
+from reconciler.planning.diff import diff
+from reconciler.planning.graph import steps_for
+from reconciler.planning.model import Observed, Targets
+from schemas.plan import Action, Plan
+
+
+def make_plan(targets: Targets, observed: Observed, *, now: datetime, lpam_version: str) -> Plan:
+    changes = diff(targets, observed)
+    steps = steps_for(changes, targets, observed)
+    counts = {a: sum(1 for c in changes if c.action is a) for a in Action}
+    summary = (
+        f"Plan: {counts[Action.CREATE]} to add, {counts[Action.UPDATE]} to change, "
+        f"{counts[Action.REPLACE]} to replace, {counts[Action.DELETE]} to destroy."
+        if any(c.action is not Action.NOOP for c in changes)
+        else "No changes. The machine matches the desired state."
+    )
+    plan = Plan(
+        lpam_version=lpam_version,
+        created_at=now.isoformat(timespec="seconds"),
+        lineage=observed.record.lineage,
+        serial=observed.record.serial,
+        changes=changes,
+        steps=steps,
+        summary=summary,
+    )
+    return plan.model_copy(update={"fingerprint": fingerprint(plan)})
+
+
+def fingerprint(plan: Plan) -> str:
+    body = {
+        "format_version": plan.format_version,
+        "lineage": plan.lineage,
+        "serial": plan.serial,
+        "steps": [s.model_dump(mode="json") for s in plan.steps],
+    }
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
+
+
+def check_plan(plan: Plan, *, lineage: str | None, serial: int, source: str) -> None:
+    """Refuse a plan that was edited, or made against another state than the current one."""
+    if plan.fingerprint != fingerprint(plan):
+        raise PlanError(
+            f"{source}: the plan's fingerprint does not match its steps (edited or corrupt)",
+            hint="make a new plan with `lpam plan --out FILE`",
+        )
+    if any("(known after fetch)" in str(s.args.get("generation")) for s in plan.steps):
+        raise PlanError(f"{source}: the plan has values still unknown; it cannot be applied")
+    if plan.lineage is not None and plan.lineage != lineage:
+        raise StalePlanError(
+            f"{source} was made for another machine state (lineage {plan.lineage}, "
+            f"this machine has {lineage})",
+            hint="make a new plan with `lpam plan --out FILE` on this machine",
+        )
+    if plan.serial != serial:
+        raise StalePlanError(
+            f"{source} is stale: the state changed since it was made "
+            f"(serial {plan.serial}, now {serial})",
+            hint="review a fresh plan with `lpam plan --out FILE`, then apply that",
+        )

@@ -1,0 +1,169 @@
+"""The pure planning core: diff, step graph, plan sealing. No git, no disk, no processes."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+
+import networkx as nx
+import pytest
+from schemas.plan import Action, Phase, Step, StepKind
+from schemas.record import AppRecord, RepositoryRecord, StateRecord
+
+from reconciler.errors import PlanError, StalePlanError
+from reconciler.planning.diff import diff
+from reconciler.planning.graph import order, sort_graph
+from reconciler.planning.model import (
+    AppTarget,
+    Observed,
+    RepoObserved,
+    RepoTarget,
+    Targets,
+    generation_id,
+)
+from reconciler.planning.plan import check_plan, make_plan
+from reconciler.planning.render import render
+
+A, B, C = "a" * 40, "b" * 40, "c" * 40
+T1, T2 = "1" * 40, "2" * 40
+NOW = datetime(2026, 11, 22, tzinfo=UTC)
+
+
+def repo(commit: str | None = A, ref: str | None = "main", url: str = "git://h/apps") -> RepoTarget:
+    return RepoTarget(key="o/apps", url=url, ref=ref, commit=commit)
+
+
+def app(name: str = "x", tree: str | None = T1, params: dict[str, str] | None = None) -> AppTarget:
+    return AppTarget(name=name, repository="o/apps", commit=A, path=name, tree=tree,
+                     params=params or {})
+
+
+def installed(name: str = "x", tree: str = T1, running: bool = True,
+              params: dict[str, str] | None = None) -> AppRecord:
+    return AppRecord(name=name, repository="o/apps", commit=A, tree=tree, path=name,
+                     params=params or {}, generation=generation_id(tree, params or {}),
+                     running=running)
+
+
+def observed(*, commit: str | None = A, app_rec: AppRecord | None = None, head: str | None = None,
+             edits: tuple[str, ...] = (), url: str = "git://h/apps") -> Observed:
+    repos = [] if commit is None else [
+        RepositoryRecord(key="o/apps", url=url, ref="main", commit=commit)
+    ]
+    record = StateRecord(lineage="L", serial=3, repositories=repos, app=app_rec)
+    obs = {} if commit is None else {
+        "o/apps": RepoObserved(key="o/apps", present=True, head=head or commit, local_edits=edits)
+    }
+    return Observed(record=record, repositories=obs)
+
+
+def actions(targets: Targets, obs: Observed) -> dict[str, Action]:
+    return {c.address: c.action for c in diff(targets, obs)}
+
+
+def test_first_apply_creates_repository_and_app() -> None:
+    plan = make_plan(Targets((repo(),), app()), observed(commit=None), now=NOW, lpam_version="t")
+    assert {c.address: c.action for c in plan.changes} == {
+        "repository.o/apps": Action.CREATE, "app": Action.CREATE}
+    assert [s.kind for s in plan.steps] == [
+        StepKind.CHECKOUT, StepKind.STAGE, StepKind.INSTALL, StepKind.START]
+    assert plan.summary == "Plan: 2 to add, 0 to change, 0 to replace, 0 to destroy."
+
+
+def test_unchanged_machine_is_a_noop_with_reasons() -> None:
+    plan = make_plan(Targets((repo(),), app()), observed(app_rec=installed()), now=NOW,
+                     lpam_version="t")
+    assert not plan.has_changes and plan.steps == []
+    assert all(c.reason for c in plan.changes)
+    assert "No changes" in render(plan)
+
+
+def test_branch_moved_is_an_update_but_unchanged_app_folder_is_not_touched() -> None:
+    changes = diff(Targets((repo(B),), app()), observed(app_rec=installed()))
+    assert changes[0].action is Action.UPDATE and "moved" in changes[0].reason
+    assert changes[1].action is Action.NOOP
+
+
+def test_new_app_folder_replaces_generation_old_first() -> None:
+    plan = make_plan(Targets((repo(B),), app(tree=T2)), observed(app_rec=installed()), now=NOW,
+                     lpam_version="t")
+    kinds = [(s.kind, s.args.get("generation")) for s in plan.steps]
+    old, new = installed().generation, generation_id(T2, {})
+    assert kinds == [
+        (StepKind.CHECKOUT, None), (StepKind.STAGE, new), (StepKind.STOP, old),
+        (StepKind.UNINSTALL, old), (StepKind.INSTALL, new), (StepKind.START, new)]
+
+
+def test_switch_app_is_replace_and_stops_old_before_installing_new() -> None:
+    targets = Targets((repo(),), app("y", tree=T2))
+    plan = make_plan(targets, observed(app_rec=installed("x")), now=NOW, lpam_version="t")
+    assert plan.changes[-1].action is Action.REPLACE
+    ids = [s.id for s in plan.steps]
+    assert ids.index(f"stop:x@{installed().generation}") < ids.index(
+        f"install:y@{generation_id(T2, {})}")
+
+
+def test_param_change_is_update_and_installed_not_running_only_starts() -> None:
+    assert actions(Targets((repo(),), app(params={"K": "2"})),
+                   observed(app_rec=installed(params={"K": "1"})))["app"] is Action.UPDATE
+    plan = make_plan(Targets((repo(),), app()), observed(app_rec=installed(running=False)),
+                     now=NOW, lpam_version="t")
+    assert [s.kind for s in plan.steps] == [StepKind.START]
+
+
+def test_app_null_deletes_and_removed_repository_is_cleaned_up_last() -> None:
+    plan = make_plan(Targets((), None), observed(app_rec=installed()), now=NOW, lpam_version="t")
+    assert [s.kind for s in plan.steps] == [StepKind.STOP, StepKind.UNINSTALL, StepKind.REMOVE]
+    assert {c.action for c in plan.changes} == {Action.DELETE}
+
+
+def test_url_change_is_replace_and_drift_is_restored() -> None:
+    assert actions(Targets((repo(url="git://new/apps"),), None),
+                   observed())["repository.o/apps"] is Action.REPLACE
+    change = diff(Targets((repo(),), None), observed(head=C))[0]
+    assert change.action is Action.UPDATE and "outside lpam" in change.reason
+
+
+def test_local_edits_warned_on_update() -> None:
+    change = diff(Targets((repo(B),), None), observed(edits=("a.py",)))[0]
+    assert change.warnings and "a.py" in change.warnings[0]
+    assert "a.py" in render(make_plan(Targets((repo(B),), None), observed(edits=("a.py",)),
+                                      now=NOW, lpam_version="t"))
+
+
+def test_prepare_steps_precede_cutover_whatever_the_input_order() -> None:
+    steps = [
+        Step(id="start:x", kind=StepKind.START, phase=Phase.CUTOVER, args={}),
+        Step(id="remove:r", kind=StepKind.REMOVE, phase=Phase.CLEANUP, args={}),
+        Step(id="checkout:r2", kind=StepKind.CHECKOUT, phase=Phase.PREPARE, args={}),
+    ]
+    assert [s.id for s in order(steps)] == ["checkout:r2", "start:x", "remove:r"]
+
+
+def test_cycle_is_an_error_naming_it() -> None:
+    steps = {i: Step(id=i, kind=StepKind.START, phase=Phase.CUTOVER, args={}) for i in "ab"}
+    graph = nx.DiGraph([("a", "b"), ("b", "a")])
+    with pytest.raises(PlanError, match="cycle: .*a.*b"):
+        sort_graph(graph, steps, {"a": 0, "b": 1})
+    with pytest.raises(PlanError, match="cycle"):
+        order([steps["a"].model_copy(update={"needs": ["b"]}),
+               steps["b"].model_copy(update={"needs": ["a"]})])
+
+
+def test_saved_plan_refused_when_stale_or_edited() -> None:
+    plan = make_plan(Targets((repo(),), app()), observed(commit=None), now=NOW, lpam_version="t")
+    check_plan(plan, lineage="L", serial=3, source="p")
+    with pytest.raises(StalePlanError, match="serial 3, now 4"):
+        check_plan(plan, lineage="L", serial=4, source="p")
+    with pytest.raises(StalePlanError, match="lineage"):
+        check_plan(plan, lineage="other", serial=3, source="p")
+    edited = plan.model_copy(update={"steps": plan.steps[:1]})
+    with pytest.raises(PlanError, match="fingerprint"):
+        check_plan(edited, lineage="L", serial=3, source="p")
+
+
+def test_render_uses_terraform_symbols() -> None:
+    plan = make_plan(Targets((repo(),), app("y")), observed(app_rec=installed("x")), now=NOW,
+                     lpam_version="t")
+    text = render(plan)
+    assert "-/+ app: switch from x to y" in text
+    assert text.rstrip().endswith("Plan: 0 to add, 0 to change, 1 to replace, 0 to destroy.")
