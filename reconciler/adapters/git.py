@@ -1,0 +1,462 @@
+"""The repository store: lpam's only conversation with git, through dulwich.
+
+Place in the flow: `observe` reads checkouts here without network (`head`, `local_edits`,
+`resolve_local`, `read_file`); `plan` may ask `ls_remote` what a branch or tag points to;
+`apply`'s prepare phase calls `fetch` (the only network step, done before the running app
+is touched), then `checkout` and `export_folder`, which copies an app folder into an
+immutable generation.
+
+On disk it owns `layout.repositories`: one ordinary git checkout per repository key
+(`refs/remotes/origin/*` and `refs/tags/*` mirror the remote, HEAD is detached at the
+commit lpam chose). Work in progress lives in siblings named `.<slug>~clone~*` and
+`.<slug>~old~*` so that a power cut never leaves half a checkout under the key's own
+name; leftovers are swept on the next fetch. A checkout interrupted by a power cut is
+marked by `.git/lpam-checkout` so that its half-written files are not mistaken for a
+user's edits.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import socket
+import stat
+import tempfile
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import urlparse
+
+from dulwich import porcelain
+from dulwich.client import (
+    GitClient,
+    HTTPProxyUnauthorized,
+    HTTPUnauthorized,
+    LocalGitClient,
+    StrangeHostname,
+    get_transport_and_path,
+)
+from dulwich.errors import GitProtocolError, NotGitRepository, NotTreeError
+from dulwich.index import (
+    InvalidPathError,
+    build_file_from_blob,
+    validate_path_element_default,
+    verify_tree_path,
+)
+from dulwich.object_store import iter_tree_contents, peel_sha
+from dulwich.objects import Blob, Commit, ObjectID, SubmoduleEncountered, Tree
+from dulwich.refs import Ref
+from dulwich.repo import Repo
+
+from reconciler.atomic import fsync_dir, write_atomic
+from reconciler.errors import GitError, LocalEditsError, RefNotFoundError
+from reconciler.layout import Layout, slug
+from schemas.names import is_hex_commit
+
+_HEADS = "refs/heads/"
+_TAGS = "refs/tags/"
+_PEELED = "^{}"
+_SCHEMES = ("git", "http", "https", "ssh", "file")
+_NETWORK_HINT = "check the URL and the network; nothing on the machine was changed"
+_MARKER = "lpam-checkout"
+_TRANSPORT_ERRORS = (
+    OSError,
+    GitProtocolError,
+    NotGitRepository,
+    HTTPUnauthorized,
+    HTTPProxyUnauthorized,
+    StrangeHostname,
+)
+
+
+@dataclass(frozen=True)
+class RemoteRefs:
+    """What a remote advertises: branch and tag tips (tags peeled to their commit)."""
+
+    url: str
+    refs: dict[str, str]
+    default_branch: str | None
+
+    def resolve(self, ref: str | None) -> str | None:
+        """The commit `ref` names on the remote, or None.
+
+        Short names are tried as a tag before a branch, the order `git rev-parse` uses, so
+        that lpam and a user's git agree on an ambiguous name.
+        """
+        if ref is None:
+            return self.refs.get(_HEADS + self.default_branch) if self.default_branch else None
+        for name in (ref, _TAGS + ref, _HEADS + ref):
+            if name.startswith("refs/") and name in self.refs:
+                return self.refs[name]
+        if len(ref) == 40 and is_hex_commit(ref) and ref in self.refs.values():
+            return ref
+        return None
+
+
+class GitStore:
+    """The checkouts under `layout.repositories`, and the remotes they come from."""
+
+    def __init__(self, layout: Layout, *, timeout: float = 60.0) -> None:
+        self._layout = layout
+        self._timeout = timeout
+        # dulwich's git:// client has no timeout parameter, so the process default bounds
+        # every wait. It is set here, for the process, not saved and restored per call:
+        # resolve() fetches from several threads, and a per-call restore could race and
+        # leave another thread's connection unbounded. lpam runs one store per process.
+        socket.setdefaulttimeout(timeout)
+
+    # -- read-only, no network ---------------------------------------------------------
+
+    def head(self, key: str) -> str | None:
+        with self._open(key) as repo:
+            if repo is None:
+                return None
+            try:
+                return repo.refs[Ref(b"HEAD")].decode("ascii")
+            except KeyError:  # a fresh clone: HEAD names a branch that was never made
+                return None
+
+    def origin_url(self, key: str) -> str | None:
+        with self._open(key) as repo:
+            with contextlib.suppress(KeyError):
+                if repo is not None:
+                    return str(repo.get_config().get((b"remote", b"origin"), b"url"), "utf-8")
+            return None
+
+    def has_commit(self, key: str, commit: str) -> bool:
+        with self._open(key) as repo:
+            return repo is not None and _commit(repo, commit) is not None
+
+    def resolve_local(self, key: str, ref: str) -> str | None:
+        """Expand an abbreviated hash against the commits already fetched (no network)."""
+        ref = ref.lower()
+        if not is_hex_commit(ref):
+            return None
+        with self._open(key) as repo:
+            if repo is None:
+                return None
+            found = sorted(
+                {sha.decode("ascii") for sha in repo.object_store.iter_prefix(ref.encode())}
+            )
+            commits = [sha for sha in found if _commit(repo, sha) is not None]
+        if len(commits) > 1:
+            raise RefNotFoundError(
+                f"{key}: the abbreviated hash '{ref}' matches {len(commits)} commits: "
+                + ", ".join(commits),
+                hint="give more digits of the commit hash",
+            )
+        return commits[0] if commits else None
+
+    def local_edits(self, key: str) -> list[str]:
+        """Paths a checkout would overwrite or a removal would lose.
+
+        Empty while an interrupted checkout is pending: those differences were written by
+        lpam, and the next checkout finishes that job first.
+        """
+        with self._open(key) as repo:
+            if repo is None or _marker(repo).exists():
+                return []
+            return _edits(repo)
+
+    def read_file(self, key: str, commit: str, path: str) -> bytes | None:
+        with self._open(key) as repo:
+            found = None if repo is None else _lookup(repo, commit, path)
+            if repo is None or found is None or not stat.S_ISREG(found[0]):
+                return None
+            return repo.object_store[found[1]].as_raw_string()
+
+    def folder_tree(self, key: str, commit: str, folder: str) -> str | None:
+        with self._open(key) as repo:
+            found = None if repo is None else _lookup(repo, commit, folder)
+        if found is None or not stat.S_ISDIR(found[0]):
+            return None
+        return found[1].decode("ascii")
+
+    # -- network, read-only -------------------------------------------------------------
+
+    def ls_remote(self, url: str) -> RemoteRefs:
+        client, path = self._client(url)
+        with self._network(url, "list the branches and tags of"):
+            result = client.get_refs(path.encode("utf-8"))
+            advertised = {
+                name.decode("utf-8"): sha.decode("ascii")
+                for name, sha in result.refs.items()
+                if sha is not None
+            }
+            if isinstance(client, LocalGitClient):  # local repositories do not send peeled tags
+                advertised.update(_peel_local(path, advertised))
+        refs = {
+            name: advertised.get(name + _PEELED, sha)
+            for name, sha in advertised.items()
+            if name.startswith((_HEADS, _TAGS)) and not name.endswith(_PEELED)
+        }
+        head = result.symrefs.get(Ref(b"HEAD"), b"").decode("utf-8")
+        if head.startswith(_HEADS) and head in refs:
+            default: str | None = head[len(_HEADS) :]
+        else:
+            default = next((b for b in ("main", "master") if _HEADS + b in refs), None)
+        return RemoteRefs(url=url, refs=refs, default_branch=default)
+
+    # -- writes -------------------------------------------------------------------------
+
+    def fetch(self, key: str, url: str) -> None:
+        """Bring `key` up to date with `url`, cloning it when absent or when the URL changed."""
+        dest = self._checkout_dir(key)
+        self._sweep(key)
+        current = self.origin_url(key) if dest.exists() else None
+        if current == url:
+            with Repo(str(dest)) as repo:
+                self._fetch_into(repo, url)
+            return
+        if dest.exists():
+            self._refuse_edits(key, "cannot switch it to " + url)
+        fresh = self._temp(key, "clone")
+        try:
+            with Repo.init(str(fresh)) as repo:
+                config = repo.get_config()
+                config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
+                config.set((b"remote", b"origin"), b"fetch", b"+refs/heads/*:refs/remotes/origin/*")
+                config.write_to_path()
+                self._fetch_into(repo, url)
+            if dest.exists():  # rename(2) may replace the empty directory _temp made
+                os.rename(dest, self._temp(key, "old"))
+            os.rename(fresh, dest)
+        except BaseException:
+            shutil.rmtree(fresh, ignore_errors=True)
+            raise
+        fsync_dir(dest.parent)
+        self._sweep(key)
+
+    def checkout(self, key: str, commit: str) -> None:
+        """Detach HEAD at `commit` and make the index and working tree match it."""
+        with self._open(key) as repo:
+            if repo is None or _commit(repo, commit) is None:
+                raise RefNotFoundError(
+                    f"{key}: commit {commit} is not in the repository store",
+                    hint="fetch the repository first, or check the commit hash",
+                )
+            marker = _marker(repo)
+            if marker.exists():
+                # A power cut stopped a checkout half-way, and HEAD (moved last) still names
+                # where it started: switching to the recorded target rewrites exactly the
+                # paths it was rewriting. Only then are remaining differences a user's.
+                pending = marker.read_text().strip()
+                if _commit(repo, pending) is not None:
+                    porcelain.checkout(repo, pending, force=True)
+                marker.unlink()
+            self._refuse_edits(key, f"cannot check out {commit[:12]}", repo=repo)
+            write_atomic(marker, commit + "\n")
+            # force: the tree was just found clean; only ignored files could still be in the way
+            porcelain.checkout(repo, commit, force=True)
+            marker.unlink()
+
+    def remove(self, key: str) -> None:
+        dest = self._checkout_dir(key)
+        if not dest.exists():
+            return
+        self._refuse_edits(key, "cannot remove it")
+        doomed = self._temp(key, "old")
+        os.rename(dest, doomed)  # one rename: the key's checkout is wholly there or gone
+        fsync_dir(dest.parent)
+        shutil.rmtree(doomed)
+
+    def export_folder(self, key: str, commit: str, folder: str, dest: Path) -> str:
+        """Copy `commit:folder` into the new directory `dest`; return the folder's tree sha.
+
+        Files keep their exec bits and symlinks stay symlinks, exactly as git would check
+        them out. A failed export removes `dest`. Durability of the copy (and renaming it
+        into place) is the caller's business, since it owns the generation's layout.
+        """
+        with self._open(key) as repo:
+            found = None if repo is None else _lookup(repo, commit, folder)
+            if repo is None or found is None or not stat.S_ISDIR(found[0]):
+                raise RefNotFoundError(
+                    f"{key}: there is no folder '{folder}' at commit {commit}",
+                    hint="check the app's folder in the app catalog at that commit",
+                )
+            tree_id = found[1]
+            dest.mkdir(parents=True)
+            root = os.fsencode(dest)
+            safe_prefix: list[bytes] = []
+            try:
+                for entry in iter_tree_contents(repo.object_store, tree_id):
+                    assert entry.path is not None and entry.mode is not None
+                    assert entry.sha is not None
+                    if stat.S_ISDIR(entry.mode) or entry.mode == 0o160000:  # submodule
+                        continue
+                    verify_tree_path(entry.path, validate_path_element_default, safe_prefix, root)
+                    target = os.path.join(root, entry.path)
+                    os.makedirs(os.path.dirname(target), exist_ok=True)
+                    blob = repo.object_store[entry.sha]
+                    assert isinstance(blob, Blob)
+                    build_file_from_blob(blob, entry.mode, target)
+            except InvalidPathError as exc:
+                shutil.rmtree(dest, ignore_errors=True)
+                raise GitError(
+                    f"{key}: commit {commit} has an unsafe path {exc.args[0]!r} in '{folder}'",
+                    hint="the repository tries to write outside the app folder; do not use it",
+                ) from exc
+            except BaseException:
+                shutil.rmtree(dest, ignore_errors=True)
+                raise
+        return tree_id.decode("ascii")
+
+    # -- helpers ------------------------------------------------------------------------
+
+    def _checkout_dir(self, key: str) -> Path:
+        """The key's directory, refusing to replace or delete something that is not lpam's."""
+        path = self._layout.repository_dir(key)
+        if path.exists() and not (path / ".git").is_dir():
+            raise GitError(
+                f"{path} is in the repository store but is not a git checkout",
+                hint="move it elsewhere or delete it; lpam will then clone the repository there",
+            )
+        return path
+
+    @contextlib.contextmanager
+    def _open(self, key: str) -> Iterator[Repo | None]:
+        """The checkout of `key`, closed afterwards (dulwich keeps pack files open)."""
+        path = self._layout.repository_dir(key)
+        if not (path / ".git").is_dir():
+            yield None
+            return
+        with Repo(str(path)) as repo:
+            yield repo
+
+    def _client(self, url: str) -> tuple[GitClient, str]:
+        """A dulwich client for `url`, refusing what it would misparse or crash on."""
+        parsed = urlparse(url)
+        if "://" in url:
+            if parsed.scheme not in _SCHEMES or (parsed.scheme != "file" and not parsed.hostname):
+                raise GitError(f"'{url}' is not a git URL lpam can use", hint=_NETWORK_HINT)
+        elif not os.path.isabs(url):
+            raise GitError(
+                f"'{url}' is neither a URL nor an absolute path",
+                hint="use an https://, git://, ssh:// or file:// URL, or an absolute path",
+            )
+        pool = None
+        if parsed.scheme in ("http", "https"):  # urllib3 takes the timeout the git:// path lacks
+            import urllib3
+            from dulwich.client import default_urllib3_manager
+
+            manager = default_urllib3_manager(None, timeout=self._timeout)
+            pool = manager if isinstance(manager, urllib3.PoolManager) else None
+        with self._network(url, "connect to"):
+            return get_transport_and_path(url, pool_manager=pool)
+
+    @contextlib.contextmanager
+    def _network(self, url: str, action: str) -> Iterator[None]:
+        """Turn transport failures into one-line GitErrors (the bound on every wait is the
+        socket default timeout set in __init__)."""
+        try:
+            yield
+        except _TRANSPORT_ERRORS as exc:
+            if isinstance(exc, TimeoutError) or isinstance(exc.__cause__, TimeoutError):
+                reason = f"no answer within {self._timeout:g} s"  # dulwich wraps it in its own
+            elif isinstance(exc, StrangeHostname):
+                reason = "the host name looks like a command-line option"
+            else:
+                reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            raise GitError(f"cannot {action} {url}: {reason}", hint=_NETWORK_HINT) from exc
+
+    def _fetch_into(self, repo: Repo, url: str) -> None:
+        """Fetch every branch and tag, then mirror them as origin's refs and local tags.
+
+        The refs are written only after the pack is safely stored, so a failed fetch
+        changes nothing; `porcelain.fetch(repo, URL)` would not write them at all.
+        """
+        client, path = self._client(url)
+
+        def wanted(refs: Mapping[Ref, ObjectID], depth: int | None = None) -> list[ObjectID]:
+            tips = [*_under(refs, b"refs/heads/").values(), *_under(refs, b"refs/tags/").values()]
+            return [sha for sha in dict.fromkeys(tips) if sha and sha not in repo.object_store]
+
+        with self._network(url, "fetch"):
+            result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)
+        heads, tags = _under(result.refs, b"refs/heads/"), _under(result.refs, b"refs/tags/")
+        repo.refs.import_refs(Ref(b"refs/remotes/origin"), heads, prune=True)
+        repo.refs.import_refs(Ref(b"refs/tags"), tags)
+
+    def _refuse_edits(self, key: str, doing: str, *, repo: Repo | None = None) -> None:
+        edits = _edits(repo) if repo is not None else self.local_edits(key)
+        if not edits:
+            return
+        path = self._layout.repository_dir(key)
+        shown = ", ".join(edits[:5]) + (f" and {len(edits) - 5} more" if len(edits) > 5 else "")
+        raise LocalEditsError(
+            f"{key}: {doing}: {path} has local edits: {shown}",
+            hint=f"commit and push them, or move them elsewhere, or delete {path} "
+            "(lpam will fetch it again)",
+        )
+
+    def _temp(self, key: str, kind: str) -> Path:
+        """A new sibling of the checkout; '~' never occurs in a slug, so sweeping is exact."""
+        self._layout.repositories.mkdir(parents=True, exist_ok=True)
+        prefix = f".{slug(key)}~{kind}~"
+        return Path(tempfile.mkdtemp(prefix=prefix, dir=self._layout.repositories))
+
+    def _sweep(self, key: str) -> None:
+        """Remove what an interrupted fetch or removal of `key` left behind."""
+        if not self._layout.repositories.is_dir():
+            return
+        for kind in ("clone", "old"):
+            for leftover in self._layout.repositories.glob(f".{slug(key)}~{kind}~*"):
+                shutil.rmtree(leftover, ignore_errors=True)
+
+
+def _commit(repo: Repo, commit: str) -> Commit | None:
+    if len(commit) != 40 or not is_hex_commit(commit):
+        return None
+    try:
+        obj = repo.object_store[ObjectID(commit.encode("ascii"))]
+    except KeyError:
+        return None
+    return obj if isinstance(obj, Commit) else None
+
+
+def _lookup(repo: Repo, commit: str, path: str) -> tuple[int, ObjectID] | None:
+    """(mode, sha) of `commit:path`; the commit's root tree for an empty path or '.'."""
+    found = _commit(repo, commit)
+    if found is None:
+        return None
+    clean = "/".join(part for part in path.split("/") if part not in ("", "."))
+    tree = repo.object_store[found.tree]
+    assert isinstance(tree, Tree)
+    try:
+        return tree.lookup_path(repo.object_store.__getitem__, clean.encode("utf-8"))
+    except (KeyError, NotTreeError, SubmoduleEncountered):
+        return None
+
+
+def _edits(repo: Repo) -> list[str]:
+    status = porcelain.status(repo, untracked_files="all")
+    paths: set[bytes] = set(status.unstaged) | set(status.untracked)
+    for changed in status.staged.values():
+        paths.update(changed)
+    return sorted(os.fsdecode(p) for p in paths)
+
+
+def _under(refs: Mapping[Ref, ObjectID | None], prefix: bytes) -> dict[Ref, ObjectID | None]:
+    """The refs below `prefix`, named relative to it, without peeled `^{}` entries."""
+    return {
+        Ref(name[len(prefix) :]): sha
+        for name, sha in refs.items()
+        if sha is not None and name.startswith(prefix) and not name.endswith(b"^{}")
+    }
+
+
+def _marker(repo: Repo) -> Path:
+    return Path(repo.controldir()) / _MARKER
+
+
+def _peel_local(path: str, refs: dict[str, str]) -> dict[str, str]:
+    """The `^{}` entries a local repository does not advertise: annotated tags peeled."""
+    peeled = {}
+    with Repo(path) as repo:
+        for name, sha in refs.items():
+            if name.startswith(_TAGS) and not name.endswith(_PEELED):
+                target = peel_sha(repo.object_store, ObjectID(sha.encode("ascii")))[1].id
+                if target.decode("ascii") != sha:
+                    peeled[name + _PEELED] = target.decode("ascii")
+    return peeled

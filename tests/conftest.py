@@ -1,0 +1,49 @@
+"""Shared fixtures: a hermetic environment, and real git repositories served over git://."""
+
+from __future__ import annotations
+
+import os
+import socket
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.gitserver import GitDaemon, RepoBuilder
+
+
+@pytest.fixture(autouse=True)
+def hermetic_env(
+    tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> Iterator[Path]:
+    """No test sees the developer's git config, identity or HOME (dulwich's TestCase does so)."""
+    home = tmp_path_factory.mktemp("home")
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.delenv("XDG_CONFIG_HOME", raising=False)
+    for name in list(os.environ):
+        if name.startswith("GIT_"):
+            monkeypatch.delenv(name)
+    # GitStore sets the process-wide socket timeout; no test may inherit another's.
+    previous = socket.getdefaulttimeout()
+    yield home
+    socket.setdefaulttimeout(previous)
+
+
+@pytest.fixture
+def git_daemon(tmp_path_factory: pytest.TempPathFactory, hermetic_env: Path) -> Iterator[GitDaemon]:
+    """A real `git daemon` on 127.0.0.1 serving the repositories `make_repo` builds."""
+    with GitDaemon(tmp_path_factory.mktemp("served"), home=hermetic_env) as daemon:
+        yield daemon
+
+
+@pytest.fixture
+def make_repo(
+    git_daemon: GitDaemon, tmp_path_factory: pytest.TempPathFactory, hermetic_env: Path
+) -> Callable[[str], RepoBuilder]:
+    """Build a repository served as `git_daemon.url(name)` (and on disk as `.bare`)."""
+    work_root = tmp_path_factory.mktemp("work")
+
+    def make(name: str) -> RepoBuilder:
+        return RepoBuilder(git_daemon.base, name, work_root=work_root, home=hermetic_env)
+
+    return make
