@@ -1,0 +1,128 @@
+"""Versioned documents: bring what lpam reads up to the version this lpam understands.
+
+Every document lpam reads carries a `version`. Between loading (YAML/JSON → plain data)
+and validation (pydantic models in `schemas/`), `upgrade` applies the step functions of
+this package one after the other, each a pure `dict -> dict` in its own module with
+before/after fixtures in `fixtures/` (Terraform's `states/statefile/version*_upgrade`).
+A document from a *newer* lpam is refused by name rather than half-understood: the
+operator must upgrade lpam, not lose fields silently.
+
+Versions are compared as text after normalising (`1`, `"1"` → `"1"`; `0.0`, `"0.0"` →
+`"0.0"`): LPAM's manifest said `version: 0.0`, which is not an integer.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from migrations import desired_state_v0_to_v1
+from migrations.step import MigrationError, Step
+from reconciler.errors import ConfigError, VersionError
+
+CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 1, "plan": 1}
+
+# kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
+STEPS: dict[str, dict[str, tuple[str, Step]]] = {
+    "desired-state": {"0.0": ("1", desired_state_v0_to_v1.upgrade)},
+    "state-record": {},
+    "plan": {},
+}
+
+_MISSING_HINTS = {
+    "desired-state": "add `version: 1` at the top; for an LPAM manifest use `lpam import-lpam`",
+    "state-record": "this state record was not written by lpam; move it aside and run "
+    "`lpam apply` to write a new one",
+    "plan": "this plan was not written by lpam; make a new one with `lpam plan -o FILE`",
+}
+
+_NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
+
+_LABELS = {"desired-state": "desired state", "state-record": "state record", "plan": "plan"}
+
+Position = Callable[[Sequence[str | int]], tuple[int, int]]
+
+
+def upgrade(
+    kind: str, data: Any, *, path: Path, position: Position | None = None
+) -> dict[str, Any]:
+    """Bring a document of `kind` to CURRENT[kind] by applying pure step functions in order.
+
+    `position` (e.g. `Document.position`) maps a location inside `data` to a 1-based
+    (line, column); without it, errors about a specific key carry no line. `data` is not
+    modified; the result always has `version: CURRENT[kind]` as an int.
+    """
+    if kind not in CURRENT:
+        raise ValueError(f"unknown document kind {kind!r}")
+    label = _LABELS[kind]
+    if not isinstance(data, Mapping):
+        found = "nothing" if data is None else type(data).__name__
+        raise ConfigError(
+            f"expected a mapping (key: value) at the top of the {label}, found {found}",
+            path=path, line=1, column=1, hint=_MISSING_HINTS[kind] if data is None else None,
+        )
+    doc: dict[str, Any] = dict(data)
+
+    def where(loc: Sequence[str | int]) -> tuple[int | None, int | None]:
+        return position(loc) if position is not None else (None, None)
+
+    if doc.get("version") is None:
+        raise ConfigError(
+            f"the {label} has no `version`", path=path, line=1, column=1,
+            hint=_MISSING_HINTS[kind],
+        )
+    version = _normalise(doc["version"])
+    line, column = where(("version",))
+    current = str(CURRENT[kind])
+    if version is None:
+        raise VersionError(
+            f"`version` must be a number, not {doc['version']!r}",
+            path=path, line=line, column=column, hint=f"write `version: {current}`",
+        )
+    if version != current and version not in STEPS[kind]:
+        if _newer(version, CURRENT[kind]):
+            raise VersionError(
+                f"written by a newer lpam: document version {version}, this lpam reads up "
+                f"to {current}",
+                path=path, line=line, column=column, hint="upgrade lpam",
+            )
+        known = ", ".join([*STEPS[kind], current])
+        raise VersionError(
+            f"unknown {label} version {version}; this lpam reads version {known}",
+            path=path, line=line, column=column, hint=f"write `version: {current}`",
+        )
+    while version != current:
+        version, step = STEPS[kind][version]
+        try:
+            doc = step(doc)
+        except MigrationError as exc:
+            line, column = where(exc.loc)
+            raise ConfigError(
+                exc.message, path=path, line=line, column=column, hint=exc.hint
+            ) from None
+    doc["version"] = CURRENT[kind]
+    return doc
+
+
+def _normalise(value: Any) -> str | None:
+    """The version as comparable text, or None when it is not a version at all."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return repr(float(value)) if math.isfinite(value) else None
+    if isinstance(value, str) and _NUMBER.match(value.strip()):
+        text = value.strip()
+        return str(int(text)) if text.isdigit() else repr(float(text))
+    return None
+
+
+def _newer(version: str, current: int) -> bool:
+    try:
+        return float(version) > current
+    except ValueError:
+        return False

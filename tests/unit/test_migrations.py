@@ -1,0 +1,190 @@
+"""The migration registry and its steps, driven by the before/after fixtures."""
+
+from __future__ import annotations
+
+import copy
+import importlib
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import migrations
+from migrations import CURRENT, STEPS, desired_state_v0_to_v1, upgrade
+from migrations.step import MigrationError
+from reconciler.errors import ConfigError, VersionError
+from reconciler.loading import load
+from schemas.desired import DesiredState
+
+FIXTURES = Path(migrations.__file__).parent / "fixtures"
+# Every registered step and the fixture folder that proves it.
+STEP_FIXTURES = {("desired-state", "0.0"): FIXTURES / "desired-state" / "v0_to_v1"}
+PATH = Path("doc.yaml")
+
+
+def pairs(folder: Path) -> list[tuple[Path, Path]]:
+    befores = sorted(folder.glob("*.before.yaml"))
+    return [(b, b.with_name(b.name.replace(".before.", ".after."))) for b in befores]
+
+
+V0_PAIRS = pairs(STEP_FIXTURES[("desired-state", "0.0")])
+
+
+def read(path: Path) -> Any:
+    return load(path).data
+
+
+def test_every_step_has_fixtures_and_a_docstring() -> None:
+    for kind, steps in STEPS.items():
+        for source, (_, step) in steps.items():
+            folder = STEP_FIXTURES[(kind, source)]
+            assert pairs(folder), f"no fixtures for {kind} {source}"
+            module = importlib.import_module(step.__module__)
+            assert module.__doc__ and "why" in module.__doc__.lower()
+            assert step.__doc__
+
+
+def test_every_chain_ends_at_current() -> None:
+    for kind, steps in STEPS.items():
+        for version in steps:
+            seen = set()
+            while version != str(CURRENT[kind]):
+                assert version not in seen, f"cycle in {kind} steps"
+                seen.add(version)
+                version = steps[version][0]
+
+
+@pytest.mark.parametrize(("before", "after"), V0_PAIRS, ids=lambda p: p.name)
+def test_v0_to_v1_step_matches_fixture(before: Path, after: Path) -> None:
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert desired_state_v0_to_v1.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+
+
+@pytest.mark.parametrize(("before", "after"), V0_PAIRS, ids=lambda p: p.name)
+def test_upgrade_chain_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    result = upgrade("desired-state", read(before), path=before)
+    assert result == read(after)
+    DesiredState.model_validate(result)
+
+
+@pytest.mark.parametrize("version", [1, "1", " 1 "])
+def test_current_version_passes_through(version: object) -> None:
+    data = {"version": version, "repositories": [{"repo": "a/b"}], "app": "x"}
+    result = upgrade("desired-state", data, path=PATH)
+    assert result == {"version": 1, "repositories": [{"repo": "a/b"}], "app": "x"}
+    assert data["version"] == version
+
+
+@pytest.mark.parametrize("kind", sorted(CURRENT))
+def test_newer_version_is_refused_naming_both(kind: str) -> None:
+    with pytest.raises(VersionError) as info:
+        upgrade(kind, {"version": 3}, path=PATH)
+    message = info.value.message
+    assert "newer lpam" in message
+    assert "document version 3" in message
+    assert f"reads up to {CURRENT[kind]}" in message
+    assert info.value.hint == "upgrade lpam"
+
+
+def test_newer_version_position_comes_from_the_document() -> None:
+    doc = load(PATH, "# a comment\napp: x\nversion: 2\n")
+    with pytest.raises(VersionError) as info:
+        upgrade("desired-state", doc.data, path=PATH, position=doc.position)
+    assert (info.value.line, info.value.column) == (3, 1)
+    assert info.value.path == PATH
+
+
+@pytest.mark.parametrize("data", [{}, {"app": "x"}, {"version": None}])
+def test_missing_version(data: dict[str, Any]) -> None:
+    with pytest.raises(ConfigError) as info:
+        upgrade("desired-state", data, path=PATH)
+    assert not isinstance(info.value, VersionError)
+    assert (info.value.path, info.value.line, info.value.column) == (PATH, 1, 1)
+    assert "version" in info.value.message
+    assert info.value.hint is not None
+    assert "version: 1" in info.value.hint
+    assert "import-lpam" in info.value.hint
+
+
+@pytest.mark.parametrize("kind", ["state-record", "plan"])
+def test_missing_version_of_other_kinds_has_a_hint(kind: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        upgrade(kind, {"serial": 1}, path=PATH)
+    assert info.value.hint
+
+
+@pytest.mark.parametrize("data", [[1, 2], "text", 3, None])
+def test_non_mapping(data: object) -> None:
+    with pytest.raises(ConfigError) as info:
+        upgrade("desired-state", data, path=PATH)
+    assert (info.value.line, info.value.column) == (1, 1)
+    assert info.value.message.startswith("expected a mapping")
+
+
+@pytest.mark.parametrize(
+    ("version", "shown"), [(0.5, "0.5"), ("0.1", "0.1"), (0, "0"), (1.0, "1.0")]
+)
+def test_unknown_older_version_is_named(version: object, shown: str) -> None:
+    with pytest.raises(VersionError) as info:
+        upgrade("desired-state", {"version": version}, path=PATH)
+    assert f"version {shown};" in info.value.message
+    assert "0.0, 1" in info.value.message
+
+
+@pytest.mark.parametrize("version", [True, "one", [1], float("nan"), "1e3"])
+def test_version_that_is_not_a_number(version: object) -> None:
+    with pytest.raises(VersionError) as info:
+        upgrade("desired-state", {"version": version}, path=PATH)
+    assert "must be a number" in info.value.message
+
+
+@pytest.mark.parametrize("kind", ["state-record", "plan"])
+def test_other_kinds_only_know_version_1(kind: str) -> None:
+    assert upgrade(kind, {"version": 1, "serial": 4}, path=PATH) == {"version": 1, "serial": 4}
+    with pytest.raises(VersionError):
+        upgrade(kind, {"version": "0.0"}, path=PATH)
+
+
+def test_unknown_kind_is_a_programming_error() -> None:
+    with pytest.raises(ValueError, match="unknown document kind"):
+        upgrade("catalog", {"version": 1}, path=PATH)
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "column", "words"),
+    [
+        ("version: 0.0\nrepositories:\n  ../x:\n    branch: main\n", 3, 3, "'../x'"),
+        ("version: 0.0\nrepositories:\n  'a;rm -rf/x': {branch: main}\n", 3, 3, "a;rm -rf"),
+        ("version: 0.0\nrepositories:\n  a/b:\n    branch: '-x'\n", 4, 5, "branch"),
+        ("version: 0.0\nrepositories:\n  a/b:\n    branch: [main]\n", 4, 5, "string"),
+        ("version: 0.0\nrepositories:\n  a/b:\n    tag: v1\n", 4, 5, "'tag'"),
+        ("version: 0.0\nrepositories: [a/b]\n", 2, 1, "map"),
+        ("version: 0.0\ncurrent: ../etc\n", 2, 1, "app name"),
+        ("version: 0.0\ncurrent: [a]\n", 2, 1, "current"),
+        ("version: 0.0\nextra: 1\n", 2, 1, "'extra'"),
+    ],
+)
+def test_step_errors_point_into_the_old_document(
+    text: str, line: int, column: int, words: str
+) -> None:
+    doc = load(PATH, text)
+    with pytest.raises(ConfigError) as info:
+        upgrade("desired-state", doc.data, path=PATH, position=doc.position)
+    assert (info.value.path, info.value.line, info.value.column) == (PATH, line, column)
+    assert words in info.value.message
+    assert "Traceback" not in info.value.render()
+
+
+def test_step_error_without_position_has_no_line() -> None:
+    with pytest.raises(ConfigError) as info:
+        upgrade("desired-state", {"version": 0.0, "current": "../x"}, path=PATH)
+    assert info.value.line is None
+
+
+def test_step_raises_migration_error_with_location() -> None:
+    with pytest.raises(MigrationError) as info:
+        desired_state_v0_to_v1.upgrade({"repositories": {"a/b": {"branch": "a b"}}})
+    assert info.value.loc == ("repositories", "a/b", "branch")
+    assert info.value.hint
