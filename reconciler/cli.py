@@ -23,6 +23,11 @@ from reconciler.errors import ConfigError, LpamError
 from reconciler.layout import Layout
 
 EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
+NETWORK_TIMEOUT = ("--network-timeout",)
+NETWORK_TIMEOUT_OPTIONS: dict[str, Any] = {
+    "type": float, "default": 60.0, "metavar": "SECONDS",
+    "help": "give up on a git server that does not answer for this long (default 60)",
+}
 
 
 def now() -> datetime:
@@ -48,6 +53,7 @@ def _parser() -> argparse.ArgumentParser:
     plan.add_argument("--out", type=Path, help="save the plan for `lpam apply PLANFILE`")
     plan.add_argument("--detailed-exitcode", action="store_true",
                       help="exit 0 without changes, 2 with changes, 1 on error")
+    plan.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
 
     apply = sub.add_parser("apply", parents=[common], help="make the machine match")
     apply.add_argument("planfile", nargs="?", type=Path, help="a plan saved by plan --out")
@@ -57,6 +63,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="wait this long for another apply to finish (default 10)")
     apply.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
                        help="kill an app script running longer than this (default 600)")
+    apply.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
 
     status = sub.add_parser("status", parents=[common], help="show repositories and apps")
     status.add_argument("--json", action="store_true")
@@ -109,7 +116,7 @@ def _desired_path(args: argparse.Namespace, layout: Layout) -> Path:
     return Path(args.file) if args.file else layout.desired_state
 
 
-def _prepare(layout: Layout, path: Path, *, fetch: bool) -> Any:
+def _prepare(layout: Layout, path: Path, *, fetch: bool, timeout: float) -> Any:
     """Load, resolve and observe; returns (store, plan)."""
     from reconciler.adapters.git import GitStore
     from reconciler.documents import load_desired
@@ -118,7 +125,7 @@ def _prepare(layout: Layout, path: Path, *, fetch: bool) -> Any:
     from reconciler.planning.plan import make_plan
 
     desired = load_desired(path)
-    store = GitStore(layout)
+    store = GitStore(layout, timeout=timeout)
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch)
     observed = observe(layout, store, targets)
     if observed.interrupted:
@@ -131,7 +138,8 @@ def _prepare(layout: Layout, path: Path, *, fetch: bool) -> Any:
 def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.planning.render import render
 
-    _, plan = _prepare(layout, _desired_path(args, layout), fetch=args.out is not None)
+    _, plan = _prepare(layout, _desired_path(args, layout), fetch=args.out is not None,
+                       timeout=args.network_timeout)
     if args.out is not None:
         from reconciler.atomic import write_atomic
 
@@ -171,13 +179,14 @@ def _apply_saved(args: argparse.Namespace, layout: Layout) -> int:
     plan = load_plan(args.planfile)
     record = read_record(layout)
     check_plan(plan, lineage=record.lineage, serial=record.serial, source=str(args.planfile))
-    return _execute(args, layout, GitStore(layout), plan)
+    return _execute(args, layout, GitStore(layout, timeout=args.network_timeout), plan)
 
 
 def _apply_desired(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.planning.render import render
 
-    store, plan = _prepare(layout, _desired_path(args, layout), fetch=True)
+    store, plan = _prepare(layout, _desired_path(args, layout), fetch=True,
+                           timeout=args.network_timeout)
     print(render(plan))
     if not plan.steps:
         return EXIT_OK

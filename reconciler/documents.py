@@ -55,7 +55,7 @@ def load_desired(path: Path) -> DesiredState:
     from migrations import upgrade
 
     doc = load(path)
-    data = upgrade("desired-state", doc.data, path=path)
+    data = upgrade("desired-state", doc.data, path=path, position=doc.position)
     _check_duplicate_repositories(doc, data)
     state: DesiredState = _validate(doc, data, DesiredState, "desired state")
     return state

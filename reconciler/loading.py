@@ -103,18 +103,45 @@ def load(path: Path, text: str | None = None) -> Document:
         raise ConfigError(problem, path=path, line=line, column=column, hint=hint) from None
     except YAMLError as exc:
         raise ConfigError(f"not valid YAML: {exc}", path=path, line=1, column=1) from None
-    return Document(path=path, data=plain(tree), tree=tree)
+    return Document(path=path, data=plain(tree, path), tree=tree)
 
 
-def plain(node: Any) -> Any:
-    """The round-trip tree as plain dicts, lists and scalars (what migrations work on)."""
-    if isinstance(node, Mapping):
-        return {str(k) if not isinstance(k, str) else k: plain(v) for k, v in node.items()}
-    if isinstance(node, list):
-        return [plain(v) for v in node]
-    if isinstance(node, str):
-        return str(node)
-    return node
+MAX_NODES = 100_000
+
+
+def plain(node: Any, path: Path | None = None) -> Any:
+    """The round-trip tree as plain dicts, lists and scalars (what migrations work on).
+
+    YAML aliases are expanded, so a self-referencing alias or an alias bomb ("billion
+    laughs") would recurse forever or explode in memory: both are refused.
+    """
+    budget = [MAX_NODES]
+    active: set[int] = set()
+
+    def walk(item: Any) -> Any:
+        budget[0] -= 1
+        if budget[0] < 0:
+            raise ConfigError(
+                f"document expands to more than {MAX_NODES} nodes (YAML aliases?)",
+                path=path, line=1, column=1, hint="write the values out instead of aliasing",
+            )
+        if isinstance(item, Mapping | list):
+            if id(item) in active:
+                line, column = locate(item, ())
+                raise ConfigError("a YAML alias refers to itself", path=path, line=line,
+                                  column=column, hint="remove the recursive alias")
+            active.add(id(item))
+            try:
+                if isinstance(item, Mapping):
+                    return {k if isinstance(k, str) else str(k): walk(v) for k, v in item.items()}
+                return [walk(v) for v in item]
+            finally:
+                active.discard(id(item))
+        if isinstance(item, str):
+            return str(item)
+        return item
+
+    return walk(node)
 
 
 def locate(tree: Any, loc: Iterable[str | int]) -> tuple[int, int]:

@@ -5,11 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from schemas.desired import DesiredState
-from schemas.export import FOLDER, rendered
 
 from reconciler.documents import load_desired, parse_catalog
 from reconciler.errors import ConfigError, VersionError
+from schemas.desired import DesiredState
+from schemas.export import FOLDER, rendered
 
 REFERENCE = Path(__file__).resolve().parents[2].parent / "shared" / "reference"
 TOP = Path(__file__).resolve().parents[2]

@@ -6,8 +6,6 @@ from datetime import UTC, datetime
 
 import networkx as nx
 import pytest
-from schemas.plan import Action, Phase, Step, StepKind
-from schemas.record import AppRecord, RepositoryRecord, StateRecord
 
 from reconciler.errors import PlanError, StalePlanError
 from reconciler.planning.diff import diff
@@ -22,6 +20,8 @@ from reconciler.planning.model import (
 )
 from reconciler.planning.plan import check_plan, make_plan
 from reconciler.planning.render import render
+from schemas.plan import Action, Phase, Step, StepKind
+from schemas.record import AppRecord, RepositoryRecord, StateRecord
 
 A, B, C = "a" * 40, "b" * 40, "c" * 40
 T1, T2 = "1" * 40, "2" * 40
@@ -142,7 +142,7 @@ def test_prepare_steps_precede_cutover_whatever_the_input_order() -> None:
 def test_cycle_is_an_error_naming_it() -> None:
     steps = {i: Step(id=i, kind=StepKind.START, phase=Phase.CUTOVER, args={}) for i in "ab"}
     graph = nx.DiGraph([("a", "b"), ("b", "a")])
-    with pytest.raises(PlanError, match="cycle: .*a.*b"):
+    with pytest.raises(PlanError, match=r"cycle: .*a.*b"):
         sort_graph(graph, steps, {"a": 0, "b": 1})
     with pytest.raises(PlanError, match="cycle"):
         order([steps["a"].model_copy(update={"needs": ["b"]}),

@@ -1,0 +1,99 @@
+"""Support for the CLI tests: an app repository whose scripts leave a trace, and a runner
+for the real `lpam` command in a subprocess with its own --root."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tests.gitserver import RepoBuilder
+
+SCRIPT = """#!/usr/bin/env bash
+set -euo pipefail
+echo "$LPAM_APP:{script}:${{MODE:-}}" >> "$LPAM_ROOT/events.log"
+{extra}
+"""
+
+CATALOG = """\
+apps:
+  - name: alpha
+    path: alpha/
+    properties:
+      - owns_panda: true
+  - name: beta
+    properties:
+      - owns_panda: true
+"""
+
+
+def add_app(repo: RepoBuilder, name: str, *, extra: dict[str, str] | None = None) -> None:
+    """An app folder whose four scripts append `app:script:MODE` to $LPAM_ROOT/events.log."""
+    for script in ("install", "uninstall", "start", "stop"):
+        body = SCRIPT.format(script=script, extra=(extra or {}).get(script, ""))
+        repo.write(f"{name}/{script}.sh", body, executable=True)
+    repo.write(f"{name}/description.txt", f"the {name} app\n")
+    repo.write(f"{name}/service", "can\n")
+
+
+def apps_repo(repo: RepoBuilder) -> str:
+    """Catalog with alpha and beta; returns the first commit's hash (pushed as main)."""
+    repo.write("libpanda-apps.yaml", CATALOG)
+    add_app(repo, "alpha")
+    add_app(repo, "beta")
+    first = repo.commit("alpha and beta")
+    repo.push()
+    return first
+
+
+@dataclass
+class Lpam:
+    """The real CLI, in a subprocess, confined to `root`."""
+
+    root: Path
+
+    def __call__(self, *args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "reconciler", "--root", str(self.root), *args],
+            capture_output=True, text=True, timeout=timeout, env=dict(os.environ),
+        )
+
+    def spawn(self, *args: str) -> subprocess.Popen[str]:
+        return subprocess.Popen(
+            [sys.executable, "-m", "reconciler", "--root", str(self.root), *args],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        )
+
+    def desired(self, text: str) -> Path:
+        path = self.root / "etc" / "lpam" / "desired-state.yaml"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+        return path
+
+    def status(self) -> dict[str, Any]:
+        done = self("status", "--json")
+        assert done.returncode == 0, done.stderr
+        result: dict[str, Any] = json.loads(done.stdout)
+        return result
+
+    def events(self) -> list[str]:
+        log = self.root / "events.log"
+        return log.read_text().split() if log.exists() else []
+
+
+def desired(url: str, app: str | None, ref: str | None = None, **params: str) -> str:
+    lines = ["version: 1", "repositories:", f"  - url: {url}"]
+    if ref is not None:
+        lines.append(f"    ref: {ref}")
+    if app is None:
+        lines.append("app: null")
+    else:
+        lines += ["app:", f"  name: {app}"]
+        if params:
+            lines.append("  params:")
+            lines += [f'    {k}: "{v}"' for k, v in params.items()]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,229 @@
+"""plan / apply / status end to end: the real CLI, a real git daemon on 127.0.0.1, real
+bash scripts. Each test asserts what an operator would check: the exit code, what the
+status says, and the order in which the app scripts ran."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from tests.gitserver import GitDaemon, RepoBuilder
+from tests.integration.apps import Lpam, add_app, apps_repo, desired
+
+
+@pytest.fixture
+def lpam(tmp_path: Path) -> Lpam:
+    return Lpam(tmp_path / "root")
+
+
+@pytest.fixture
+def repo(make_repo: Callable[[str], RepoBuilder]) -> RepoBuilder:
+    builder = make_repo("apps.git")
+    apps_repo(builder)
+    return builder
+
+
+def test_first_apply_from_empty_installs_and_starts(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    lpam.desired(desired(git_daemon.url("apps.git"), "alpha", MODE="fast"))
+    plan = lpam("plan", "--detailed-exitcode")
+    assert plan.returncode == 2, plan.stderr
+    assert "+ repository.apps" in plan.stdout and "+ app: install alpha" in plan.stdout
+    done = lpam("apply", "--yes")
+    assert done.returncode == 0, done.stderr
+    assert lpam.events() == ["alpha:install:fast", "alpha:start:fast"]
+    status = lpam.status()
+    head = repo.rev("main")
+    assert status["app"]["name"] == "alpha" and status["app"]["commit"] == head
+    assert status["repositories"] == [
+        {"key": "apps", "url": git_daemon.url("apps.git"), "ref": None, "commit": head}]
+    table = lpam("status").stdout
+    assert "alpha" in table and "the beta app" in table and "yes" in table
+
+
+def test_replan_is_noop_and_pinned_needs_no_network(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    head = repo.rev("main")
+    lpam.desired(desired(git_daemon.url("apps.git"), "alpha", ref=head))
+    assert lpam("apply", "--yes").returncode == 0
+    git_daemon._stop()  # every connection attempt now fails
+    again = lpam("plan", "--detailed-exitcode")
+    assert again.returncode == 0, again.stderr
+    assert "No changes" in again.stdout
+    assert lpam("apply", "--yes").returncode == 0
+    assert lpam.events() == ["alpha:install:", "alpha:start:"]
+
+
+def test_branch_moved_upstream_updates_only_what_changed(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    lpam.desired(desired(git_daemon.url("apps.git"), "alpha", ref="main"))
+    assert lpam("apply", "--yes").returncode == 0
+    second = repo.commit("beta changes", {"beta/notes.txt": "x\n"})
+    repo.push()
+    plan = lpam("plan", "--detailed-exitcode")
+    assert plan.returncode == 2 and "~ repository.apps: ref main moved" in plan.stdout
+    assert lpam("apply", "--yes").returncode == 0
+    assert lpam.status()["repositories"][0]["commit"] == second
+    assert lpam.events() == ["alpha:install:", "alpha:start:"]  # alpha's folder unchanged
+    third = repo.commit("alpha changes", {"alpha/notes.txt": "y\n"})
+    repo.push()
+    assert lpam("apply", "--yes").returncode == 0
+    assert lpam.status()["app"]["commit"] == third
+    assert lpam.events()[2:] == ["alpha:stop:", "alpha:uninstall:", "alpha:install:",
+                                 "alpha:start:"]
+
+
+def test_pin_older_hash_abbreviated_hash_and_tag(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    first = repo.rev("main")
+    repo.tag("v1.0", message="annotated release")
+    second = repo.commit("more", {"alpha/more.txt": "1\n"})
+    repo.tag("light")
+    repo.push()
+    url = git_daemon.url("apps.git")
+    for ref, expected in [(None, second), (first, first), (second[:8], second),
+                          ("v1.0", first), ("light", second)]:
+        lpam.desired(desired(url, "alpha", ref=ref))
+        done = lpam("apply", "--yes")
+        assert done.returncode == 0, (ref, done.stderr)
+        status = lpam.status()
+        assert status["repositories"][0]["commit"] == expected, ref
+        assert status["app"]["commit"] == expected, ref
+        assert (lpam.root / "var/lib/lpam/repositories/apps/alpha/install.sh").exists()
+
+
+def test_switch_app_stops_and_uninstalls_before_installing(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    url = git_daemon.url("apps.git")
+    lpam.desired(desired(url, "alpha"))
+    assert lpam("apply", "--yes").returncode == 0
+    lpam.desired(desired(url, "beta"))
+    assert lpam("plan", "--detailed-exitcode").returncode == 2
+    done = lpam("apply", "--yes")
+    assert done.returncode == 0, done.stderr
+    assert lpam.events() == ["alpha:install:", "alpha:start:", "alpha:stop:",
+                             "alpha:uninstall:", "beta:install:", "beta:start:"]
+    assert lpam.status()["app"]["name"] == "beta"
+    generations = sorted(p.name for p in (lpam.root / "var/lib/lpam/generations").iterdir())
+    assert generations == ["alpha", "beta"]
+    assert not any((lpam.root / "var/lib/lpam/generations/alpha").iterdir())
+
+
+def test_app_null_uninstalls_and_removed_repository_is_deleted(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    url = git_daemon.url("apps.git")
+    lpam.desired(desired(url, "alpha"))
+    assert lpam("apply", "--yes").returncode == 0
+    lpam.desired(desired(url, None))
+    assert lpam("apply", "--yes").returncode == 0
+    assert lpam.events()[2:] == ["alpha:stop:", "alpha:uninstall:"]
+    assert lpam.status()["app"] is None
+    lpam.desired("version: 1\nrepositories: []\napp: null\n")
+    assert lpam("apply", "--yes").returncode == 0
+    assert lpam.status()["repositories"] == []
+    assert not (lpam.root / "var/lib/lpam/repositories/apps").exists()
+
+
+def test_missing_ref_changes_nothing(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    url = git_daemon.url("apps.git")
+    lpam.desired(desired(url, "alpha"))
+    assert lpam("apply", "--yes").returncode == 0
+    before = lpam.status()
+    for ref in ("no-such-branch", "0123456789abcdef0123456789abcdef01234567", "deadbee"):
+        lpam.desired(desired(url, "beta", ref=ref))
+        done = lpam("apply", "--yes")
+        assert done.returncode == 1
+        assert "not found" in done.stderr and "Traceback" not in done.stderr
+        assert len(done.stderr.strip().splitlines()) <= 2
+        assert lpam.status() == before
+    assert lpam.events() == ["alpha:install:", "alpha:start:"]
+
+
+def test_saved_plan_is_refused_after_the_state_changed(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon, tmp_path: Path
+) -> None:
+    url = git_daemon.url("apps.git")
+    lpam.desired(desired(url, "alpha"))
+    saved = tmp_path / "alpha.plan"
+    assert lpam("plan", "--out", str(saved)).returncode == 0
+    lpam.desired(desired(url, "beta"))
+    assert lpam("apply", "--yes").returncode == 0
+    refused = lpam("apply", str(saved))
+    assert refused.returncode == 1 and "stale" in refused.stderr
+    assert lpam.status()["app"]["name"] == "beta"
+    fresh = tmp_path / "fresh.plan"
+    lpam.desired(desired(url, "alpha"))
+    assert lpam("plan", "--out", str(fresh), "--json").returncode == 0
+    applied = lpam("apply", str(fresh))
+    assert applied.returncode == 0, applied.stderr
+    assert lpam.status()["app"]["name"] == "alpha"
+
+
+def test_plan_json_has_format_version(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    import json
+
+    lpam.desired(desired(git_daemon.url("apps.git"), "alpha"))
+    plan = json.loads(lpam("plan", "--json").stdout)
+    assert plan["format_version"] == 1
+    assert [c["action"] for c in plan["changes"]] == ["create", "create"]
+    assert [s["kind"] for s in plan["steps"]] == ["checkout", "stage", "install", "start"]
+
+
+def test_local_edits_are_reported_and_never_thrown_away(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    lpam.desired(desired(git_daemon.url("apps.git"), "alpha", ref="main"))
+    assert lpam("apply", "--yes").returncode == 0
+    edited = lpam.root / "var/lib/lpam/repositories/apps/alpha/install.sh"
+    edited.write_text("# my field fix\n")
+    repo.commit("upstream moves", {"beta/x.txt": "1\n"})
+    repo.push()
+    plan = lpam("plan")
+    assert "local edits" in plan.stdout and "alpha/install.sh" in plan.stdout
+    done = lpam("apply", "--yes")
+    assert done.returncode == 1 and "alpha/install.sh" in done.stderr
+    assert edited.read_text() == "# my field fix\n"
+    assert lpam.status()["app"]["running"] is True
+
+
+def test_url_change_reclones(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    lpam.desired(desired(git_daemon.url("apps.git"), "alpha"))
+    assert lpam("apply", "--yes").returncode == 0
+    file_url = f"file://{repo.bare}"
+    lpam.desired(desired(file_url, "alpha"))
+    plan = lpam("plan")
+    assert "-/+ repository.apps: URL changed" in plan.stdout
+    assert lpam("apply", "--yes").returncode == 0
+    assert lpam.status()["repositories"][0]["url"] == file_url
+    assert lpam.events() == ["alpha:install:", "alpha:start:"]  # same folder: app untouched
+
+
+def test_failing_script_stops_the_apply_with_a_clear_message(
+    lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
+) -> None:
+    builder = make_repo("broken.git")
+    builder.write("libpanda-apps.yaml", "apps:\n  - name: alpha\n")
+    add_app(builder, "alpha", extra={"start": "exit 3"})
+    builder.commit("broken start")
+    builder.push()
+    lpam.desired(desired(git_daemon.url("broken.git"), "alpha"))
+    done = lpam("apply", "--yes")
+    assert done.returncode == 1
+    assert "start.sh failed with exit code 3" in done.stderr
+    assert "Installed now: alpha (installed, not running)" in done.stderr
+    assert "Traceback" not in done.stderr
+    assert "alpha@" in lpam("plan").stdout and "not running" in lpam("plan").stdout
