@@ -74,7 +74,8 @@ def _parser() -> argparse.ArgumentParser:
 
     imp = sub.add_parser("import-lpam", parents=[common],
                          help="write a desired state equivalent to an LPAM installation")
-    imp.add_argument("etc_dir", nargs="?", type=Path, default=Path("/etc/libpanda.d"))
+    imp.add_argument("etc_dir", nargs="?", type=Path,
+                     help="LPAM's folder (default: <root>/etc/libpanda.d)")
     imp.add_argument("-o", "--output", type=Path, help="write here instead of printing")
     return parser
 
@@ -239,7 +240,8 @@ def cmd_validate(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_import(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.legacy import import_lpam
 
-    text = import_lpam(Path(args.etc_dir))
+    etc_dir = args.etc_dir if args.etc_dir is not None else layout.root / "etc" / "libpanda.d"
+    text = import_lpam(etc_dir)
     if args.output is None:
         print(text, end="")
         return EXIT_OK

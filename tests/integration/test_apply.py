@@ -4,6 +4,7 @@ status says, and the order in which the app scripts ran."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -227,3 +228,28 @@ def test_failing_script_stops_the_apply_with_a_clear_message(
     assert "Installed now: alpha (installed, not running)" in done.stderr
     assert "Traceback" not in done.stderr
     assert "alpha@" in lpam("plan").stdout and "not running" in lpam("plan").stdout
+
+
+def test_scripts_get_params_a_log_and_a_timeout(
+    lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
+) -> None:
+    builder = make_repo("slow.git")
+    builder.write("libpanda-apps.yaml", "apps:\n  - name: alpha\n")
+    add_app(builder, "alpha", extra={
+        "install": 'echo "dir=$PWD app_dir=$LPAM_APP_DIR rate=$RATE"',
+        "start": "sleep 30",
+    })
+    builder.commit("slow start")
+    builder.push()
+    lpam.desired(desired(git_daemon.url("slow.git"), "alpha", RATE="10"))
+    started = time.monotonic()
+    done = lpam("apply", "--yes", "--script-timeout", "1")
+    assert time.monotonic() - started < 25
+    assert done.returncode == 1
+    assert "start.sh did not finish within 1 s and was killed" in done.stderr
+    logs = list((lpam.root / "var/log/lpam").glob("apply-*.log"))
+    assert len(logs) == 1
+    text = logs[0].read_text()
+    generation = lpam.root / "var/lib/lpam/generations/alpha"
+    gen_dir = next(generation.iterdir())
+    assert f"dir={gen_dir} app_dir={gen_dir} rate=10" in text
