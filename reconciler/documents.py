@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
@@ -17,6 +17,8 @@ from reconciler.loading import Document, load
 from schemas.catalog import Catalog, RawCatalog, normalise
 from schemas.desired import DesiredState
 from schemas.plan import Plan
+
+M = TypeVar("M", bound=BaseModel)
 
 _HINTS = {
     "extra_forbidden": "remove it, or check its spelling against desired-state.example.yaml",
@@ -95,29 +97,39 @@ def parse_catalog(path: Path, text: str) -> Catalog:
         raise doc.error(str(exc), ["apps"]) from None
 
 
-def load_plan(path: Path) -> Plan:
-    """A saved plan file (`lpam plan --out`), version-checked and validated."""
-    from migrations import upgrade
-    from reconciler.loading import read_text
+def parse_json(
+    kind: str, text: str, path: Path, model: type[M], *, hint: str, version_key: str = "version"
+) -> M:
+    """A JSON document lpam wrote itself (plan, state record): parse, migrate, validate.
 
-    text = read_text(path)
+    JSON has no positions worth a user's time, so faults name the field path instead.
+    """
+    from migrations import upgrade
+
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ConfigError(
-            f"not a plan file: {exc.msg}", path=path, line=exc.lineno, column=exc.colno,
-            hint="pass a file written by `lpam plan --out FILE`, or use -f for a desired state",
-        ) from None
-    if isinstance(data, dict) and "format_version" in data:
-        data["version"] = data.pop("format_version")
-    data = upgrade("plan", data, path=path)
-    data["format_version"] = data.pop("version")
+        raise ConfigError(f"not a valid {kind}: {exc.msg}", path=path, line=exc.lineno,
+                          column=exc.colno, hint=hint) from None
+    if isinstance(data, dict) and version_key != "version" and version_key in data:
+        data["version"] = data.pop(version_key)
+    data = upgrade(kind, data, path=path)
+    if version_key != "version":
+        data[version_key] = data.pop("version")
     try:
-        return Plan.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
         error = exc.errors()[0]
         where = ".".join(str(p) for p in error["loc"])
-        raise ConfigError(
-            f"invalid plan at {where}: {error['msg']}", path=path,
-            hint="make a new plan with `lpam plan --out FILE`",
-        ) from None
+        raise ConfigError(f"invalid {kind} at {where}: {error['msg']}", path=path,
+                          hint=hint) from None
+
+
+def load_plan(path: Path) -> Plan:
+    """A saved plan file (`lpam plan --out`), version-checked and validated."""
+    from reconciler.loading import read_text
+
+    return parse_json(
+        "plan", read_text(path), path, Plan, version_key="format_version",
+        hint="pass a file written by `lpam plan --out FILE`, or use -f for a desired state",
+    )

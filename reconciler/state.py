@@ -10,10 +10,7 @@ import json
 import uuid
 from pathlib import Path
 
-from pydantic import ValidationError
-
 from reconciler.atomic import write_atomic
-from reconciler.errors import ConfigError
 from reconciler.layout import Layout
 from schemas.record import StateRecord
 
@@ -29,25 +26,10 @@ def read_record(layout: Layout) -> StateRecord:
 
 
 def parse_record(text: str, path: Path) -> StateRecord:
-    from migrations import upgrade
+    from reconciler.documents import parse_json
 
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ConfigError(
-            f"state record is not valid JSON: {exc.msg}", path=path, line=exc.lineno,
-            column=exc.colno, hint="restore it from a backup, or remove it to start afresh",
-        ) from None
-    data = upgrade("state-record", data, path=path)
-    try:
-        return StateRecord.model_validate(data)
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise ConfigError(
-            f"state record is invalid at {where}: {first['msg']}", path=path,
-            hint="restore it from a backup, or remove it to start afresh",
-        ) from None
+    return parse_json("state-record", text, path, StateRecord,
+                      hint="restore it from a backup, or remove it to start afresh")
 
 
 def write_record(layout: Layout, record: StateRecord) -> StateRecord:

@@ -40,11 +40,13 @@ def add_app(repo: RepoBuilder, name: str, *, extra: dict[str, str] | None = None
     repo.write(f"{name}/service", "can\n")
 
 
-def apps_repo(repo: RepoBuilder) -> str:
-    """Catalog with alpha and beta; returns the first commit's hash (pushed as main)."""
+def apps_repo(
+    repo: RepoBuilder, *, alpha: dict[str, str] | None = None, beta: dict[str, str] | None = None
+) -> str:
+    """Catalog with alpha and beta (with `extra` script lines); returns the pushed commit."""
     repo.write("libpanda-apps.yaml", CATALOG)
-    add_app(repo, "alpha")
-    add_app(repo, "beta")
+    add_app(repo, "alpha", extra=alpha)
+    add_app(repo, "beta", extra=beta)
     first = repo.commit("alpha and beta")
     repo.push()
     return first

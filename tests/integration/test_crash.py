@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from tests.gitserver import GitDaemon, RepoBuilder
-from tests.integration.apps import CATALOG, Lpam, add_app, desired
+from tests.integration.apps import Lpam, apps_repo, desired
 
 HANG_ONCE = """\
 if [ ! -e "$LPAM_ROOT/killed-once" ]; then
@@ -63,12 +63,7 @@ def wait_gone(pid: int, seconds: float = 10) -> None:
 def test_sigkill_during_cutover_then_apply_converges(
     tmp_path: Path, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:
-    repo = make_repo("apps.git")
-    repo.write("libpanda-apps.yaml", CATALOG)
-    add_app(repo, "alpha")
-    add_app(repo, "beta", extra={"install": HANG_ONCE})
-    repo.commit("apps")
-    repo.push()
+    apps_repo(make_repo("apps.git"), beta={"install": HANG_ONCE})
     lpam = Lpam(tmp_path / "root")
     url = git_daemon.url("apps.git")
     lpam.desired(desired(url, "alpha"))
@@ -102,12 +97,7 @@ def test_sigkill_during_cutover_then_apply_converges(
 def test_two_concurrent_applies_install_once(
     tmp_path: Path, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:
-    repo = make_repo("apps.git")
-    repo.write("libpanda-apps.yaml", CATALOG)
-    add_app(repo, "alpha", extra={"install": "sleep 1"})
-    add_app(repo, "beta")
-    repo.commit("apps")
-    repo.push()
+    apps_repo(make_repo("apps.git"), alpha={"install": "sleep 1"})
     lpam = Lpam(tmp_path / "root")
     lpam.desired(desired(git_daemon.url("apps.git"), "alpha"))
     first = lpam.spawn("apply", "--yes", "--lock-timeout", "60")
@@ -121,12 +111,7 @@ def test_two_concurrent_applies_install_once(
 def test_second_apply_fails_clearly_when_the_lock_is_held(
     tmp_path: Path, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:
-    repo = make_repo("apps.git")
-    repo.write("libpanda-apps.yaml", CATALOG)
-    add_app(repo, "alpha", extra={"install": 'touch "$LPAM_ROOT/in-install"; sleep 5'})
-    add_app(repo, "beta")
-    repo.commit("apps")
-    repo.push()
+    apps_repo(make_repo("apps.git"), alpha={"install": 'touch "$LPAM_ROOT/in-install"; sleep 5'})
     lpam = Lpam(tmp_path / "root")
     lpam.desired(desired(git_daemon.url("apps.git"), "alpha"))
     first = lpam.spawn("apply", "--yes")
