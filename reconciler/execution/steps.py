@@ -110,7 +110,41 @@ def uninstall(step: Step, ctx: Context) -> None:
     if gen_dir.is_dir():
         ctx.scripts.run(app.name, gen_dir, "uninstall.sh", app.params)
     ctx.save(ctx.record.model_copy(update={"app": None}))
-    shutil.rmtree(gen_dir, ignore_errors=True)
+    # The generation stays until the apply succeeds: a failed cutover reinstalls it.
+
+
+def reinstall(previous: AppRecord, ctx: Context) -> None:
+    """Put `previous` back after a failed cutover: clean up the half-installed new app,
+    then install and start the old generation, recording each effect."""
+    current = ctx.record.app
+    if current is not None and current != previous:
+        gen_dir = ctx.layout.generation_dir(current.name, current.generation)
+        if current.running:
+            ctx.scripts.run(current.name, gen_dir, "stop.sh", current.params)
+        ctx.scripts.run(current.name, gen_dir, "uninstall.sh", current.params)
+        ctx.save(ctx.record.model_copy(update={"app": None}))
+    if ctx.record.app is None:
+        gen_dir = ctx.layout.generation_dir(previous.name, previous.generation)
+        ctx.scripts.run(previous.name, gen_dir, "install.sh", previous.params)
+        ctx.save(ctx.record.model_copy(update={"app": previous.model_copy(
+            update={"running": False})}))
+    app = ctx.record.app
+    if app is not None and previous.running and not app.running:
+        gen_dir = ctx.layout.generation_dir(app.name, app.generation)
+        ctx.scripts.run(app.name, gen_dir, "start.sh", app.params)
+        ctx.save(ctx.record.model_copy(update={"app": app.model_copy(update={"running": True})}))
+
+
+def prune_generations(ctx: Context) -> None:
+    """After a successful apply, only the installed generation is kept."""
+    keep = ctx.record.app
+    root = ctx.layout.generations
+    if not root.is_dir():
+        return
+    for app_dir in root.iterdir():
+        for gen in app_dir.iterdir() if app_dir.is_dir() else ():
+            if keep is None or (app_dir.name, gen.name) != (keep.name, keep.generation):
+                shutil.rmtree(gen, ignore_errors=True)
 
 
 def install(step: Step, ctx: Context) -> None:

@@ -253,3 +253,25 @@ def test_scripts_get_params_a_log_and_a_timeout(
     generation = lpam.root / "var/lib/lpam/generations/alpha"
     gen_dir = next(generation.iterdir())
     assert f"dir={gen_dir} app_dir={gen_dir} rate=10" in text
+
+
+@pytest.mark.parametrize("failing", ["install", "start"])
+def test_failed_cutover_rolls_back_to_the_previous_app(
+    lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon, failing: str
+) -> None:
+    apps_repo(make_repo("apps.git"), beta={failing: "exit 4"})
+    url = git_daemon.url("apps.git")
+    lpam.desired(desired(url, "alpha"))
+    assert lpam("apply", "--yes").returncode == 0
+    lpam.desired(desired(url, "beta"))
+    done = lpam("apply", "--yes")
+    assert done.returncode == 1
+    assert f"{failing}.sh failed with exit code 4" in done.stderr
+    assert "Rolled back to alpha. Installed now: alpha (running)." in done.stderr
+    beta_ran = ["beta:install:"] + (["beta:start:"] if failing == "start" else [])
+    assert lpam.events() == [
+        "alpha:install:", "alpha:start:", "alpha:stop:", "alpha:uninstall:",
+        *beta_ran, "beta:uninstall:", "alpha:install:", "alpha:start:"]
+    status = lpam.status()
+    assert status["app"]["name"] == "alpha" and status["app"]["running"] is True
+    assert lpam("plan", "--detailed-exitcode").returncode == 2  # beta is still wanted
