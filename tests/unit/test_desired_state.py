@@ -11,7 +11,7 @@ from reconciler.errors import ConfigError, VersionError
 from schemas.desired import DesiredState
 from schemas.export import FOLDER, rendered
 
-REFERENCE = Path(__file__).resolve().parents[2].parent / "shared" / "reference"
+REFERENCE = Path(__file__).resolve().parents[1] / "fixtures"
 TOP = Path(__file__).resolve().parents[2]
 
 
