@@ -1,5 +1,5 @@
 """`python -m reconciler` is the same as the `lpam` console script."""
 
-from reconciler.cli import main
+from reconciler.cli import entry
 
-raise SystemExit(main())
+raise SystemExit(entry())

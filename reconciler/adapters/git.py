@@ -26,17 +26,9 @@ import tempfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlparse
 
-from dulwich import porcelain
-from dulwich.client import (
-    GitClient,
-    HTTPProxyUnauthorized,
-    HTTPUnauthorized,
-    LocalGitClient,
-    StrangeHostname,
-    get_transport_and_path,
-)
 from dulwich.errors import GitProtocolError, NotGitRepository, NotTreeError
 from dulwich.index import (
     InvalidPathError,
@@ -54,20 +46,25 @@ from reconciler.errors import GitError, LocalEditsError, RefNotFoundError
 from reconciler.layout import Layout, slug
 from schemas.names import is_hex_commit
 
+if TYPE_CHECKING:
+    from dulwich.client import GitClient
+
+# dulwich.porcelain and dulwich.client are imported where they are used: a no-op plan of
+# pinned repositories reads the store only and should not pay for the network stack.
+
 _HEADS = "refs/heads/"
 _TAGS = "refs/tags/"
 _PEELED = "^{}"
 _SCHEMES = ("git", "http", "https", "ssh", "file")
 _NETWORK_HINT = "check the URL and the network; nothing on the machine was changed"
 _MARKER = "lpam-checkout"
-_TRANSPORT_ERRORS = (
-    OSError,
-    GitProtocolError,
-    NotGitRepository,
-    HTTPUnauthorized,
-    HTTPProxyUnauthorized,
-    StrangeHostname,
-)
+
+
+def _transport_errors() -> tuple[type[Exception], ...]:
+    from dulwich.client import HTTPProxyUnauthorized, HTTPUnauthorized, StrangeHostname
+
+    return (OSError, GitProtocolError, NotGitRepository, HTTPUnauthorized,
+            HTTPProxyUnauthorized, StrangeHostname)
 
 
 @dataclass(frozen=True)
@@ -184,6 +181,8 @@ class GitStore:
                 for name, sha in result.refs.items()
                 if sha is not None
             }
+            from dulwich.client import LocalGitClient
+
             if isinstance(client, LocalGitClient):  # local repositories do not send peeled tags
                 advertised.update(_peel_local(path, advertised))
         refs = {
@@ -243,12 +242,12 @@ class GitStore:
                 # paths it was rewriting. Only then are remaining differences a user's.
                 pending = marker.read_text().strip()
                 if _commit(repo, pending) is not None:
-                    porcelain.checkout(repo, pending, force=True)
+                    _checkout(repo, pending)
                 marker.unlink()
             self._refuse_edits(key, f"cannot check out {commit[:12]}", repo=repo)
             write_atomic(marker, commit + "\n")
             # force: the tree was just found clean; only ignored files could still be in the way
-            porcelain.checkout(repo, commit, force=True)
+            _checkout(repo, commit)
             marker.unlink()
 
     def remove(self, key: str) -> None:
@@ -343,6 +342,8 @@ class GitStore:
             manager = default_urllib3_manager(None, timeout=self._timeout)
             pool = manager if isinstance(manager, urllib3.PoolManager) else None
         with self._network(url, "connect to"):
+            from dulwich.client import get_transport_and_path
+
             return get_transport_and_path(url, pool_manager=pool)
 
     @contextlib.contextmanager
@@ -351,7 +352,9 @@ class GitStore:
         socket default timeout set in __init__)."""
         try:
             yield
-        except _TRANSPORT_ERRORS as exc:
+        except _transport_errors() as exc:
+            from dulwich.client import StrangeHostname
+
             if isinstance(exc, TimeoutError) or isinstance(exc.__cause__, TimeoutError):
                 reason = f"no answer within {self._timeout:g} s"  # dulwich wraps it in its own
             elif isinstance(exc, StrangeHostname):
@@ -429,7 +432,20 @@ def _lookup(repo: Repo, commit: str, path: str) -> tuple[int, ObjectID] | None:
         return None
 
 
+def _checkout(repo: Repo, commit: str) -> None:
+    from dulwich import porcelain
+
+    porcelain.checkout(repo, commit, force=True)
+
+
 def _edits(repo: Repo) -> list[str]:
+    """Paths a user changed in the working tree. A clone never checked out (no index)
+    holds nothing of the user's unless files were put beside `.git`."""
+    from dulwich import porcelain
+
+    if not os.path.exists(repo.index_path()):
+        others = [e for e in os.listdir(repo.path) if e != ".git"]
+        return sorted(others)
     status = porcelain.status(repo, untracked_files="all")
     paths: set[bytes] = set(status.unstaged) | set(status.untracked)
     for changed in status.staged.values():

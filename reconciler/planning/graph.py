@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterable
-
-import networkx as nx
+from typing import TYPE_CHECKING
 
 from reconciler.errors import PlanError
 from reconciler.planning.model import AppTarget, Observed, Targets
 from schemas.plan import Action, Change, Phase, Step, StepKind
+
+if TYPE_CHECKING:
+    import networkx as nx
 
 _PHASE_ORDER = {Phase.PREPARE: 0, Phase.CUTOVER: 1, Phase.CLEANUP: 2}
 
@@ -90,6 +92,10 @@ def _app_steps(change: Change, new: AppTarget | None, observed: Observed) -> lis
 def order(steps: Iterable[Step]) -> list[Step]:
     """Topologically sort the steps under the phase and cutover rules; stable for equal ranks."""
     steps = list(steps)
+    if not steps:
+        return []  # a no-op plan: no need to load networkx at all
+    import networkx as nx
+
     index = {s.id: i for i, s in enumerate(steps)}
     if len(index) != len(steps):
         raise PlanError("two steps of the plan have the same id; this is a bug in lpam")
@@ -107,6 +113,8 @@ def order(steps: Iterable[Step]) -> list[Step]:
 
 
 def sort_graph(graph: nx.DiGraph, steps: dict[str, Step], index: dict[str, int]) -> list[Step]:
+    import networkx as nx
+
     try:
         ordered = nx.lexicographical_topological_sort(graph, key=lambda n: index.get(n, 0))
         ids = list(ordered)
