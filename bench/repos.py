@@ -8,13 +8,10 @@ connections needs `--verbose` and its stderr.
 
 from __future__ import annotations
 
-import socket
-import subprocess
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from tests.gitserver import GitDaemon, RepoBuilder, free_port
+from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import add_app
 
 CATALOG = """\
@@ -34,45 +31,14 @@ class CountingDaemon(GitDaemon):
     """
 
     def __init__(self, base: Path, *, home: Path, log: Path) -> None:
-        super().__init__(base, home=home)
-        self.log = log
-
-    def __enter__(self) -> CountingDaemon:
-        self.base.mkdir(parents=True, exist_ok=True)
-        for _attempt in range(5):
-            self.port = free_port()
-            with self.log.open("ab") as err:
-                self._proc = subprocess.Popen(
-                    [
-                        "git", "daemon", "--reuseaddr", "--verbose",
-                        f"--base-path={self.base}", "--export-all", "--listen=127.0.0.1",
-                        f"--port={self.port}", "--informative-errors", "--enable=upload-pack",
-                        str(self.base),
-                    ],
-                    env=self.env, stdout=subprocess.DEVNULL, stderr=err,
-                    start_new_session=True,  # `git daemon` forks children: kill the group
-                )
-            deadline = time.monotonic() + 10.0
-            while time.monotonic() < deadline and self._proc.poll() is None:
-                if _accepts(self.port):
-                    return self
-                time.sleep(0.05)
-            self._stop()
-        raise RuntimeError("git daemon did not start on 127.0.0.1 after 5 attempts")
+        super().__init__(base, home=home, log=log)
 
     def connections(self) -> int:
         """Connections accepted so far (a tool's count is the difference over its run)."""
-        if not self.log.exists():
+        if self.log is None or not self.log.exists():
             return 0
         return self.log.read_text(errors="replace").count("Connection from")
 
-
-def _accepts(port: int) -> bool:
-    try:
-        with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-            return True
-    except OSError:
-        return False
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ import subprocess
 import time
 from pathlib import Path
 from types import TracebackType
+from typing import Self
 
 FIXED_ENV = {
     "GIT_AUTHOR_NAME": "Test Author",
@@ -70,37 +71,33 @@ def _accepts(port: int) -> bool:
 class GitDaemon:
     """`git daemon` serving every repository under `base` on a free loopback port."""
 
-    def __init__(self, base: Path, *, home: Path) -> None:
+    def __init__(self, base: Path, *, home: Path, log: Path | None = None) -> None:
         self.base = base
         self.env = git_env(home)
         self.port = 0
+        self.log = log  # with a log, the daemon runs --verbose and writes its stderr there
         self._proc: subprocess.Popen[bytes] | None = None
 
     def url(self, name: str) -> str:
         return f"git://127.0.0.1:{self.port}/{name}"
 
-    def __enter__(self) -> GitDaemon:
+    def __enter__(self) -> Self:
         self.base.mkdir(parents=True, exist_ok=True)
         for _attempt in range(5):
             self.port = free_port()
-            self._proc = subprocess.Popen(
-                [
-                    "git",
-                    "daemon",
-                    "--reuseaddr",
-                    f"--base-path={self.base}",
-                    "--export-all",
-                    "--listen=127.0.0.1",
-                    f"--port={self.port}",
-                    "--informative-errors",
-                    "--enable=upload-pack",
-                    str(self.base),
-                ],
-                env=self.env,
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                start_new_session=True,  # `git daemon` runs git-daemon as a child: kill both
-            )
+            verbose = ["--verbose"] if self.log is not None else []
+            with contextlib.ExitStack() as stack:
+                err = (stack.enter_context(self.log.open("ab")) if self.log is not None
+                       else subprocess.DEVNULL)
+                self._proc = subprocess.Popen(
+                    [
+                        "git", "daemon", "--reuseaddr", *verbose, f"--base-path={self.base}",
+                        "--export-all", "--listen=127.0.0.1", f"--port={self.port}",
+                        "--informative-errors", "--enable=upload-pack", str(self.base),
+                    ],
+                    env=self.env, stdout=subprocess.DEVNULL, stderr=err,
+                    start_new_session=True,  # `git daemon` runs git-daemon as a child: kill both
+                )
             deadline = time.monotonic() + 10.0
             while time.monotonic() < deadline and self._proc.poll() is None:
                 if _accepts(self.port):
