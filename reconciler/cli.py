@@ -17,11 +17,16 @@ import traceback
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from reconciler import __version__
 from reconciler.errors import ConfigError, LpamError
 from reconciler.layout import Layout
+
+if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
+    from reconciler.adapters.git import GitStore
+    from schemas.desired import DesiredState
+    from schemas.plan import Plan
 
 EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
 NETWORK_TIMEOUT = ("--network-timeout",)
@@ -129,15 +134,15 @@ def _desired_path(args: argparse.Namespace, layout: Layout) -> Path:
     return Path(args.file) if args.file else layout.desired_state
 
 
-def _prepare(layout: Layout, path: Path, *, fetch: bool, timeout: float) -> Any:
-    """Load, resolve and observe; returns (store, plan)."""
+def _prepare(
+    layout: Layout, path: Path, desired: DesiredState, *, fetch: bool, timeout: float
+) -> tuple[GitStore, Plan]:
+    """Resolve the desired state, observe the machine and plan; `path` anchors relative URLs."""
     from reconciler.adapters.git import GitStore
-    from reconciler.documents import load_desired
     from reconciler.observe.machine import observe
     from reconciler.observe.targets import resolve
     from reconciler.planning.plan import make_plan
 
-    desired = load_desired(path)
     store = GitStore(layout, timeout=timeout)
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch)
     observed = observe(layout, store, targets)
@@ -149,9 +154,11 @@ def _prepare(layout: Layout, path: Path, *, fetch: bool, timeout: float) -> Any:
 
 
 def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.documents import load_desired
     from reconciler.planning.render import render
 
-    _, plan = _prepare(layout, _desired_path(args, layout), fetch=args.out is not None,
+    path = _desired_path(args, layout)
+    _, plan = _prepare(layout, path, load_desired(path), fetch=args.out is not None,
                        timeout=args.network_timeout)
     if args.out is not None:
         from reconciler.atomic import write_atomic
@@ -169,37 +176,38 @@ def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.documents import load_desired, load_plan
     from reconciler.execution.lock import apply_lock
 
     if args.planfile is not None and args.file is not None:
         raise LpamError("give either a plan file or -f FILE, not both")
-    if args.planfile is None:
-        from reconciler.documents import load_desired
-
-        load_desired(_desired_path(args, layout))  # reject bad input before taking the lock
+    # Bad input is rejected before the lock is taken, so it never waits on another apply.
+    if args.planfile is not None:
+        plan = load_plan(args.planfile)
+        with apply_lock(layout, timeout=args.lock_timeout):
+            return _apply_saved(args, layout, plan)
+    path = _desired_path(args, layout)
+    desired = load_desired(path)
     with apply_lock(layout, timeout=args.lock_timeout):
-        if args.planfile is not None:
-            return _apply_saved(args, layout)
-        return _apply_desired(args, layout)
+        return _apply_desired(args, layout, path, desired)
 
 
-def _apply_saved(args: argparse.Namespace, layout: Layout) -> int:
+def _apply_saved(args: argparse.Namespace, layout: Layout, plan: Plan) -> int:
     from reconciler.adapters.git import GitStore
-    from reconciler.documents import load_plan
     from reconciler.planning.plan import check_plan
     from reconciler.state import read_record
 
-    plan = load_plan(args.planfile)
     record = read_record(layout)
     check_plan(plan, lineage=record.lineage, serial=record.serial, source=str(args.planfile))
     return _execute(args, layout, GitStore(layout, timeout=args.network_timeout), plan)
 
 
-def _apply_desired(args: argparse.Namespace, layout: Layout) -> int:
+def _apply_desired(
+    args: argparse.Namespace, layout: Layout, path: Path, desired: DesiredState
+) -> int:
     from reconciler.planning.render import render
 
-    store, plan = _prepare(layout, _desired_path(args, layout), fetch=True,
-                           timeout=args.network_timeout)
+    store, plan = _prepare(layout, path, desired, fetch=True, timeout=args.network_timeout)
     print(render(plan))
     if not plan.steps:
         return EXIT_OK
@@ -212,7 +220,7 @@ def _apply_desired(args: argparse.Namespace, layout: Layout) -> int:
     return _execute(args, layout, store, plan)
 
 
-def _execute(args: argparse.Namespace, layout: Layout, store: Any, plan: Any) -> int:
+def _execute(args: argparse.Namespace, layout: Layout, store: GitStore, plan: Plan) -> int:
     from reconciler.adapters.scripts import ScriptRunner
     from reconciler.execution.executor import execute
     from reconciler.execution.steps import Context
