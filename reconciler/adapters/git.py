@@ -13,6 +13,9 @@ commit lpam chose). Work in progress lives in siblings named `.<slug>~clone~*` a
 name; leftovers are swept on the next fetch. A checkout interrupted by a power cut is
 marked by `.git/lpam-checkout` so that its half-written files are not mistaken for a
 user's edits.
+
+The network side (what a remote advertises, fetching into a checkout) is
+`adapters.remote.Transport`; this module owns the checkouts and reads their objects.
 """
 
 from __future__ import annotations
@@ -23,72 +26,34 @@ import shutil
 import socket
 import stat
 import tempfile
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
-from urllib.parse import urlparse
 
-from dulwich.errors import GitProtocolError, NotGitRepository, NotTreeError
+from dulwich.errors import NotTreeError
 from dulwich.index import (
     InvalidPathError,
     build_file_from_blob,
     validate_path_element_default,
     verify_tree_path,
 )
-from dulwich.object_store import iter_tree_contents, peel_sha
+from dulwich.object_store import iter_tree_contents
 from dulwich.objects import Blob, Commit, ObjectID, SubmoduleEncountered, Tree
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
+from reconciler.adapters.remote import RemoteRefs, Transport
 from reconciler.atomic import fsync_dir, write_atomic
 from reconciler.errors import GitError, LocalEditsError, RefNotFoundError
 from reconciler.layout import Layout, slug
 from schemas.names import is_hex_commit
 
-if TYPE_CHECKING:
-    from dulwich.client import GitClient
+# dulwich.porcelain is imported where it is used, as dulwich.client is in adapters.remote: a
+# no-op plan of pinned repositories reads the store only and should not pay for the network
+# stack.
 
-# dulwich.porcelain and dulwich.client are imported where they are used: a no-op plan of
-# pinned repositories reads the store only and should not pay for the network stack.
+__all__ = ["GitStore", "RemoteRefs"]
 
-_HEADS = "refs/heads/"
-_TAGS = "refs/tags/"
-_PEELED = "^{}"
-_SCHEMES = ("git", "http", "https", "ssh", "file")
-_NETWORK_HINT = "check the URL and the network; nothing on the machine was changed"
 _MARKER = "lpam-checkout"
-
-
-def _transport_errors() -> tuple[type[Exception], ...]:
-    from dulwich.client import HTTPProxyUnauthorized, HTTPUnauthorized, StrangeHostname
-
-    return (OSError, GitProtocolError, NotGitRepository, HTTPUnauthorized,
-            HTTPProxyUnauthorized, StrangeHostname)
-
-
-@dataclass(frozen=True)
-class RemoteRefs:
-    """What a remote advertises: branch and tag tips (tags peeled to their commit)."""
-
-    url: str
-    refs: dict[str, str]
-    default_branch: str | None
-
-    def resolve(self, ref: str | None) -> str | None:
-        """The commit `ref` names on the remote, or None.
-
-        Short names are tried as a tag before a branch, the order `git rev-parse` uses, so
-        that lpam and a user's git agree on an ambiguous name.
-        """
-        if ref is None:
-            return self.refs.get(_HEADS + self.default_branch) if self.default_branch else None
-        for name in (ref, _TAGS + ref, _HEADS + ref):
-            if name.startswith("refs/") and name in self.refs:
-                return self.refs[name]
-        if len(ref) == 40 and is_hex_commit(ref) and ref in self.refs.values():
-            return ref
-        return None
 
 
 class GitStore:
@@ -96,7 +61,7 @@ class GitStore:
 
     def __init__(self, layout: Layout, *, timeout: float = 60.0) -> None:
         self._layout = layout
-        self._timeout = timeout
+        self._transport = Transport(timeout)
         # dulwich's git:// client has no timeout parameter, so the process default bounds
         # every wait. It is set here, for the process, not saved and restored per call:
         # resolve() fetches from several threads, and a per-call restore could race and
@@ -173,29 +138,7 @@ class GitStore:
     # -- network, read-only -------------------------------------------------------------
 
     def ls_remote(self, url: str) -> RemoteRefs:
-        client, path = self._client(url)
-        with self._network(url, "list the branches and tags of"):
-            result = client.get_refs(path.encode("utf-8"))
-            advertised = {
-                name.decode("utf-8"): sha.decode("ascii")
-                for name, sha in result.refs.items()
-                if sha is not None
-            }
-            from dulwich.client import LocalGitClient
-
-            if isinstance(client, LocalGitClient):  # local repositories do not send peeled tags
-                advertised.update(_peel_local(path, advertised))
-        refs = {
-            name: advertised.get(name + _PEELED, sha)
-            for name, sha in advertised.items()
-            if name.startswith((_HEADS, _TAGS)) and not name.endswith(_PEELED)
-        }
-        head = result.symrefs.get(Ref(b"HEAD"), b"").decode("utf-8")
-        if head.startswith(_HEADS) and head in refs:
-            default: str | None = head[len(_HEADS) :]
-        else:
-            default = next((b for b in ("main", "master") if _HEADS + b in refs), None)
-        return RemoteRefs(url=url, refs=refs, default_branch=default)
+        return self._transport.ls_remote(url)
 
     # -- writes -------------------------------------------------------------------------
 
@@ -206,7 +149,7 @@ class GitStore:
         current = self.origin_url(key) if dest.exists() else None
         if current == url:
             with Repo(str(dest)) as repo:
-                self._fetch_into(repo, url)
+                self._transport.fetch_into(repo, url)
             return
         if dest.exists():
             self._refuse_edits(key, "cannot switch it to " + url)
@@ -217,7 +160,7 @@ class GitStore:
                 config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
                 config.set((b"remote", b"origin"), b"fetch", b"+refs/heads/*:refs/remotes/origin/*")
                 config.write_to_path()
-                self._fetch_into(repo, url)
+                self._transport.fetch_into(repo, url)
             if dest.exists():  # rename(2) may replace the empty directory _temp made
                 os.rename(dest, self._temp(key, "old"))
             os.rename(fresh, dest)
@@ -323,64 +266,6 @@ class GitStore:
         with Repo(str(path)) as repo:
             yield repo
 
-    def _client(self, url: str) -> tuple[GitClient, str]:
-        """A dulwich client for `url`, refusing what it would misparse or crash on."""
-        parsed = urlparse(url)
-        if "://" in url:
-            if parsed.scheme not in _SCHEMES or (parsed.scheme != "file" and not parsed.hostname):
-                raise GitError(f"'{url}' is not a git URL lpam can use", hint=_NETWORK_HINT)
-        elif not os.path.isabs(url):
-            raise GitError(
-                f"'{url}' is neither a URL nor an absolute path",
-                hint="use an https://, git://, ssh:// or file:// URL, or an absolute path",
-            )
-        pool = None
-        if parsed.scheme in ("http", "https"):  # urllib3 takes the timeout the git:// path lacks
-            import urllib3
-            from dulwich.client import default_urllib3_manager
-
-            manager = default_urllib3_manager(None, timeout=self._timeout)
-            pool = manager if isinstance(manager, urllib3.PoolManager) else None
-        with self._network(url, "connect to"):
-            from dulwich.client import get_transport_and_path
-
-            return get_transport_and_path(url, pool_manager=pool)
-
-    @contextlib.contextmanager
-    def _network(self, url: str, action: str) -> Iterator[None]:
-        """Turn transport failures into one-line GitErrors (the bound on every wait is the
-        socket default timeout set in __init__)."""
-        try:
-            yield
-        except _transport_errors() as exc:
-            from dulwich.client import StrangeHostname
-
-            if isinstance(exc, TimeoutError) or isinstance(exc.__cause__, TimeoutError):
-                reason = f"no answer within {self._timeout:g} s"  # dulwich wraps it in its own
-            elif isinstance(exc, StrangeHostname):
-                reason = "the host name looks like a command-line option"
-            else:
-                reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            raise GitError(f"cannot {action} {url}: {reason}", hint=_NETWORK_HINT) from exc
-
-    def _fetch_into(self, repo: Repo, url: str) -> None:
-        """Fetch every branch and tag, then mirror them as origin's refs and local tags.
-
-        The refs are written only after the pack is safely stored, so a failed fetch
-        changes nothing; `porcelain.fetch(repo, URL)` would not write them at all.
-        """
-        client, path = self._client(url)
-
-        def wanted(refs: Mapping[Ref, ObjectID], depth: int | None = None) -> list[ObjectID]:
-            tips = [*_under(refs, b"refs/heads/").values(), *_under(refs, b"refs/tags/").values()]
-            return [sha for sha in dict.fromkeys(tips) if sha and sha not in repo.object_store]
-
-        with self._network(url, "fetch"):
-            result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)
-        heads, tags = _under(result.refs, b"refs/heads/"), _under(result.refs, b"refs/tags/")
-        repo.refs.import_refs(Ref(b"refs/remotes/origin"), heads, prune=True)
-        repo.refs.import_refs(Ref(b"refs/tags"), tags)
-
     def _refuse_edits(self, key: str, doing: str, *, repo: Repo | None = None) -> None:
         edits = _edits(repo) if repo is not None else self.local_edits(key)
         if not edits:
@@ -453,26 +338,5 @@ def _edits(repo: Repo) -> list[str]:
     return sorted(os.fsdecode(p) for p in paths)
 
 
-def _under(refs: Mapping[Ref, ObjectID | None], prefix: bytes) -> dict[Ref, ObjectID | None]:
-    """The refs below `prefix`, named relative to it, without peeled `^{}` entries."""
-    return {
-        Ref(name[len(prefix) :]): sha
-        for name, sha in refs.items()
-        if sha is not None and name.startswith(prefix) and not name.endswith(b"^{}")
-    }
-
-
 def _marker(repo: Repo) -> Path:
     return Path(repo.controldir()) / _MARKER
-
-
-def _peel_local(path: str, refs: dict[str, str]) -> dict[str, str]:
-    """The `^{}` entries a local repository does not advertise: annotated tags peeled."""
-    peeled = {}
-    with Repo(path) as repo:
-        for name, sha in refs.items():
-            if name.startswith(_TAGS) and not name.endswith(_PEELED):
-                target = peel_sha(repo.object_store, ObjectID(sha.encode("ascii")))[1].id
-                if target.decode("ascii") != sha:
-                    peeled[name + _PEELED] = target.decode("ascii")
-    return peeled

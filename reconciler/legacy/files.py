@@ -1,0 +1,113 @@
+"""Reading an LPAM directory: the only I/O of `lpam import-lpam`.
+
+First step of the import: `gather` reads the LPAM files under `/etc/libpanda.d` (texts,
+folder names, git HEADs) into an `LpamFiles` and interprets nothing; `eras` and `notes`
+then work on that snapshot alone, so each format's parser is tested on text. The names
+of LPAM's files are defined here, as are the limits on what is read.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from reconciler.errors import ConfigError
+
+DEFAULT_ETC_DIR = Path("/etc/libpanda.d")
+APP_FILE = "app"
+CSV_MANIFEST = "app-manifest.csv"
+YAML_MANIFEST = "app-manifest.yaml"
+YAML_BACKUP = "app-manifest.yaml.bak"  # LPAM's copy of an era-3 manifest after migrating it
+TOP_FILES = (YAML_MANIFEST, CSV_MANIFEST, APP_FILE, YAML_BACKUP)
+MAX_BYTES = 1024 * 1024
+
+
+@dataclass(frozen=True)
+class Clone:
+    """A clone LPAM made under `apps-repositories/<owner>/<repo>`."""
+
+    owner: str
+    repo: str
+    head: str | None  # text of .git/HEAD; None when absent or unreadable
+
+
+@dataclass(frozen=True)
+class LpamFiles:
+    """Everything `gather` read from an LPAM directory; the only input of `convert`."""
+
+    etc_dir: Path
+    texts: Mapping[str, str]  # path relative to etc_dir -> text
+    apps: tuple[str, ...] = ()
+    clones: tuple[Clone, ...] = ()
+    has_apps_dir: bool = False
+
+
+# --- reading (the only I/O) ---------------------------------------------------------------
+
+
+def gather(etc_dir: Path) -> LpamFiles:
+    """Read the LPAM files under `etc_dir`; nothing is interpreted here."""
+    if not etc_dir.exists():
+        raise ConfigError(
+            "LPAM directory not found", path=etc_dir,
+            hint=f"give the directory LPAM used, e.g. lpam import-lpam {DEFAULT_ETC_DIR}",
+        )
+    if not etc_dir.is_dir():
+        raise ConfigError(
+            "not a directory", path=etc_dir,
+            hint=f"give LPAM's directory (normally {DEFAULT_ETC_DIR}), not a file in it",
+        )
+    texts = {name: _read(etc_dir / name) for name in TOP_FILES if (etc_dir / name).is_file()}
+    apps_dir = etc_dir / "apps"
+    apps = tuple(p.name for p in _subdirs(apps_dir))
+    for app in apps:
+        ros = apps_dir / app / "rosRepositories.csv"
+        if ros.is_file():
+            texts[f"apps/{app}/rosRepositories.csv"] = _read(ros)
+    clones = tuple(
+        Clone(owner.name, repo.name, _head(repo))
+        for owner in _subdirs(etc_dir / "apps-repositories")
+        for repo in _subdirs(owner)
+    )
+    return LpamFiles(etc_dir, texts, apps, clones, apps_dir.is_dir())
+
+
+def _subdirs(directory: Path) -> list[Path]:
+    if not directory.is_dir():
+        return []
+    try:
+        entries = sorted(directory.iterdir())
+    except OSError as exc:
+        raise ConfigError(f"cannot list: {exc.strerror}", path=directory) from None
+    return [p for p in entries if p.is_dir() and not p.name.startswith(".")]
+
+
+def _read(path: Path) -> str:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"cannot read: {exc.strerror}", path=path) from None
+    if len(raw) > MAX_BYTES:
+        raise ConfigError("file is larger than 1 MiB; not an LPAM file", path=path)
+    if b"\x00" in raw:
+        raise ConfigError("file is binary, not text", path=path, line=1, column=1)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            "file is not UTF-8 text", path=path, line=line, column=1, hint="save it as UTF-8"
+        ) from None
+
+
+def _head(clone: Path) -> str | None:
+    try:
+        return (clone / ".git" / "HEAD").read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def comment_safe(text: str) -> str:
+    """Text from disk made safe for a YAML comment line."""
+    return text if text.isprintable() else repr(text)
