@@ -47,6 +47,17 @@ class RepositorySpec(BaseModel):
         default=None,
         description="branch, tag, full or abbreviated commit; absent: the remote's default branch",
     )
+    name: StrictStr | None = Field(
+        default=None,
+        description="short name in plans and for app.repository; default: from repo or url",
+    )
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        return check_owner_repo(value) if "/" in value else check_app_name(value)
 
     @field_validator("repo")
     @classmethod
@@ -72,6 +83,8 @@ class RepositorySpec(BaseModel):
     @property
     def key(self) -> str:
         """The repository's name in plans, the store and `app.repository`."""
+        if self.name is not None:
+            return self.name
         if self.repo is not None:
             return self.repo
         assert self.url is not None
@@ -141,8 +154,8 @@ class DesiredState(BaseModel):
             for name in {spec.key, spec.url or spec.repo or ""}:
                 if name in seen:
                     raise ValueError(
-                        f"repositories {seen[name] + 1} and {index + 1} are the same "
-                        f"repository ({name}); list each repository once"
+                        f"repositories {seen[name] + 1} and {index + 1} are both called "
+                        f"{name!r}: list each repository once, or give one a distinct `name:`"
                     )
                 seen[name] = index
         return self
@@ -150,6 +163,6 @@ class DesiredState(BaseModel):
     def repository(self, name: str) -> RepositorySpec | None:
         """Find a repository by key, shorthand or URL."""
         for spec in self.repositories:
-            if name in (spec.key, spec.repo, spec.url):
+            if name in (spec.key, spec.repo, spec.url, spec.name):
                 return spec
         return None

@@ -140,3 +140,12 @@ def test_committed_json_schemas_match_the_models() -> None:
     for name, text in rendered().items():
         assert (FOLDER / name).read_text() == text, f"run `python -m schemas.export` ({name})"
     assert "repositories" in DesiredState.model_json_schema()["properties"]
+
+
+def test_two_local_repositories_with_one_folder_name_need_a_name(tmp_path: Path) -> None:
+    clash = "version: 1\nrepositories:\n  - url: /a/apps.git\n  - url: /b/apps.git\n"
+    assert "distinct `name:`" in error_of(tmp_path, clash).render()
+    named = load_desired(write(tmp_path, clash + "    name: lab-apps\napp:\n  name: x\n"
+                                         "  repository: lab-apps\n"))
+    assert [r.key for r in named.repositories] == ["apps", "lab-apps"]
+    assert named.repository("lab-apps") is named.repositories[1]
