@@ -27,7 +27,7 @@ def diff(targets: Targets, observed: Observed) -> list[Change]:
         for rec in sorted(observed.record.repositories, key=lambda r: r.key)
         if rec.key not in wanted
     ]
-    changes.append(_app(targets.app, observed.record.app))
+    changes.append(_app(targets.app, observed.record.app, observed.generations))
     return changes
 
 
@@ -108,7 +108,7 @@ def _app_fields(
     return fields
 
 
-def _app(t: AppTarget | None, rec: AppRecord | None) -> Change:
+def _app(t: AppTarget | None, rec: AppRecord | None, generations: frozenset[str]) -> Change:
     before = (
         _app_fields(rec.name, rec.repository, rec.commit, rec.params, rec.running) if rec else None
     )
@@ -139,6 +139,12 @@ def _app(t: AppTarget | None, rec: AppRecord | None) -> Change:
     else:
         unchanged = t.tree == rec.tree and same_params
         detail = f"folder {rec.tree[:12]} → {t.tree[:12]}"
+    if unchanged and f"{rec.name}/{rec.generation}" not in generations:
+        return Change(
+            address="app", action=Action.UPDATE, before=before, after=after,
+            reason=f"{t.name}: its installed folder is missing from disk: copied out of git "
+            "again and reinstalled",
+        )
     if unchanged:
         if rec.running:
             moved = "" if t.commit == rec.commit else f"; repository now at {short(t.commit)}"

@@ -56,6 +56,7 @@ def _app_steps(change: Change, new: AppTarget | None, observed: Observed) -> lis
         new is not None and old is not None and change.action is Action.UPDATE
         and (old.name, old.repository, old.params) == (new.name, new.repository, new.params)
         and (new.tree == old.tree or (new.tree is None and new.commit == old.commit))
+        and f"{old.name}/{old.generation}" in observed.generations
     )
     if start_only:
         assert old is not None

@@ -275,3 +275,18 @@ def test_failed_cutover_rolls_back_to_the_previous_app(
     status = lpam.status()
     assert status["app"]["name"] == "alpha" and status["app"]["running"] is True
     assert lpam("plan", "--detailed-exitcode").returncode == 2  # beta is still wanted
+
+
+def test_deleted_app_folder_is_restored_from_git(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
+) -> None:
+    import shutil
+
+    lpam.desired(desired(git_daemon.url("apps.git"), "alpha"))
+    assert lpam("apply", "--yes").returncode == 0
+    shutil.rmtree(lpam.root / "var/lib/lpam/generations/alpha")
+    assert "folder is missing" in lpam("plan").stdout
+    assert lpam("apply", "--yes").returncode == 0
+    assert lpam.events()[2:] == ["alpha:stop:", "alpha:uninstall:", "alpha:install:",
+                                 "alpha:start:"]
+    assert lpam("plan", "--detailed-exitcode").returncode == 0

@@ -53,7 +53,8 @@ def observed(*, commit: str | None = A, app_rec: AppRecord | None = None, head: 
     obs = {} if commit is None else {
         "o/apps": RepoObserved(key="o/apps", present=True, head=head or commit, local_edits=edits)
     }
-    return Observed(record=record, repositories=obs)
+    gens = frozenset() if app_rec is None else frozenset({f"{app_rec.name}/{app_rec.generation}"})
+    return Observed(record=record, repositories=obs, generations=gens)
 
 
 def actions(targets: Targets, obs: Observed) -> dict[str, Action]:
@@ -167,3 +168,12 @@ def test_render_uses_terraform_symbols() -> None:
     text = render(plan)
     assert "-/+ app: switch from x to y" in text
     assert text.rstrip().endswith("Plan: 0 to add, 0 to change, 1 to replace, 0 to destroy.")
+
+
+def test_missing_generation_folder_is_restaged_and_reinstalled() -> None:
+    obs = observed(app_rec=installed())
+    obs = Observed(record=obs.record, repositories=obs.repositories)  # folder deleted by hand
+    plan = make_plan(Targets((repo(),), app()), obs, now=NOW, lpam_version="t")
+    assert plan.changes[-1].action is Action.UPDATE and "missing" in plan.changes[-1].reason
+    assert [s.kind for s in plan.steps] == [
+        StepKind.STAGE, StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START]
