@@ -96,12 +96,17 @@ def as_json(layout: Layout) -> dict[str, Any]:
     }
 
 
+def _cell(value: object) -> str:
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    return str(value)
+
+
 def as_table(layout: Layout) -> str:
     table = rows(layout)
     if not table:
         return "No app repositories. Write a desired state and run `lpam apply`."
-    cells = [[str(getattr(r, c)).replace("True", "yes").replace("False", "no") for c in COLUMNS]
-             for r in table]
+    cells = [[_cell(getattr(r, c)) for c in COLUMNS] for r in table]
     header = [c.capitalize() for c in COLUMNS]
     widths = [max(len(h), *(len(row[i]) for row in cells)) for i, h in enumerate(header)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)).rstrip()]

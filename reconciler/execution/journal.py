@@ -80,7 +80,3 @@ def interrupted_steps(layout: Layout) -> list[str]:
             open_steps.pop(step, None)
     return list(open_steps)
 
-
-def completed_steps(layout: Layout) -> list[str]:
-    """Steps of the last apply that ended (what a resumed apply must not run again)."""
-    return [str(e["step"]) for e in read_events(layout) if e.get("event") == "end"]
