@@ -15,6 +15,7 @@ _REF = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_./+-]{0,254}$")
 _SHELL = set(" \t\r\n;|&$`<>()'\"\\*?{}[]!^~")
 URL_SCHEMES = ("https://", "http://", "git://", "ssh://", "file://")
 HEX = re.compile(r"^[0-9a-f]{4,40}$")
+_USERINFO = re.compile(r"(?P<scheme>\b[A-Za-z][A-Za-z0-9+.-]*://)(?P<userinfo>[^/@\s]+)@")
 
 
 def check_app_name(value: str) -> str:
@@ -79,3 +80,18 @@ def repository_key(url: str) -> str:
     if not parts:
         return url
     return parts[-1] if local else "/".join(parts[-2:])
+
+
+def redact(text: str) -> str:
+    """`text` with the credentials of every URL in it hidden.
+
+    `https://user:secret@host/…` becomes `https://user:***@host/…`; a lone user part may be
+    a token (`https://ghp_…@github.com/…`) and is hidden whole. Used for every URL lpam
+    prints: error messages, plans and status go to terminals, logs and phones.
+    """
+
+    def hide(match: re.Match[str]) -> str:
+        user, sep, _ = match["userinfo"].partition(":")
+        return f"{match['scheme']}{user}:***@" if sep else f"{match['scheme']}***@"
+
+    return _USERINFO.sub(hide, text)
