@@ -12,6 +12,7 @@ import argparse
 import gc
 import json
 import os
+import signal
 import sys
 import traceback
 from collections.abc import Sequence
@@ -25,6 +26,7 @@ from reconciler.layout import Layout
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
     from reconciler.adapters.git import GitStore
+    from reconciler.execution.lock import Lock
     from schemas.desired import DesiredState
     from schemas.plan import Plan
 
@@ -56,7 +58,7 @@ def _parser() -> argparse.ArgumentParser:
     plan = sub.add_parser("plan", parents=[common], help="show what apply would change")
     plan.add_argument("-f", "--file", type=Path, help="desired state (default: under --root)")
     plan.add_argument("--json", action="store_true", help="print the plan as JSON")
-    plan.add_argument("--out", type=Path, help="save the plan for `lpam apply PLANFILE`")
+    plan.add_argument("-o", "--out", type=Path, help="save the plan for `lpam apply PLANFILE`")
     plan.add_argument("--detailed-exitcode", action="store_true",
                       help="exit 0 without changes, 2 with changes, 1 on error")
     plan.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
@@ -102,17 +104,27 @@ def entry() -> int:
         gc.freeze()
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised where lpam stands so that the running script is stopped first."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, _terminate)
     layout = _layout(args)
     try:
         return int(COMMANDS[args.command](args, layout))
     except LpamError as exc:
         print(exc.render(), file=sys.stderr)
         return exc.exit_code
-    except KeyboardInterrupt:
-        print("interrupted; run `lpam apply` again to resume", file=sys.stderr)
-        return 130
+    except (KeyboardInterrupt, Terminated) as exc:
+        print("interrupted: lpam stopped the script it was running and recorded where it "
+              "stood; run `lpam apply` again to resume", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
     except Exception:  # a bug: keep the traceback away from the user, but keep it
         log = _debug_log(layout)
         print(f"error: internal error in lpam {__version__}; details in {log}", file=sys.stderr)
@@ -184,26 +196,26 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
     # Bad input is rejected before the lock is taken, so it never waits on another apply.
     if args.planfile is not None:
         plan = load_plan(args.planfile)
-        with apply_lock(layout, timeout=args.lock_timeout):
-            return _apply_saved(args, layout, plan)
+        with apply_lock(layout, timeout=args.lock_timeout) as lock:
+            return _apply_saved(args, layout, plan, lock)
     path = _desired_path(args, layout)
     desired = load_desired(path)
-    with apply_lock(layout, timeout=args.lock_timeout):
-        return _apply_desired(args, layout, path, desired)
+    with apply_lock(layout, timeout=args.lock_timeout) as lock:
+        return _apply_desired(args, layout, path, desired, lock)
 
 
-def _apply_saved(args: argparse.Namespace, layout: Layout, plan: Plan) -> int:
+def _apply_saved(args: argparse.Namespace, layout: Layout, plan: Plan, lock: Lock) -> int:
     from reconciler.adapters.git import GitStore
     from reconciler.planning.plan import check_plan
     from reconciler.state import read_record
 
     record = read_record(layout)
     check_plan(plan, lineage=record.lineage, serial=record.serial, source=str(args.planfile))
-    return _execute(args, layout, GitStore(layout, timeout=args.network_timeout), plan)
+    return _execute(args, layout, GitStore(layout, timeout=args.network_timeout), plan, lock)
 
 
 def _apply_desired(
-    args: argparse.Namespace, layout: Layout, path: Path, desired: DesiredState
+    args: argparse.Namespace, layout: Layout, path: Path, desired: DesiredState, lock: Lock
 ) -> int:
     from reconciler.planning.render import render
 
@@ -217,10 +229,12 @@ def _apply_desired(
         if input("\nApply these changes? Only 'yes' is accepted: ").strip() != "yes":
             print("Apply cancelled; nothing was changed.")
             return EXIT_ERROR
-    return _execute(args, layout, store, plan)
+    return _execute(args, layout, store, plan, lock)
 
 
-def _execute(args: argparse.Namespace, layout: Layout, store: GitStore, plan: Plan) -> int:
+def _execute(
+    args: argparse.Namespace, layout: Layout, store: GitStore, plan: Plan, lock: Lock
+) -> int:
     from reconciler.adapters.scripts import ScriptRunner
     from reconciler.execution.executor import execute
     from reconciler.execution.steps import Context
@@ -230,12 +244,14 @@ def _execute(args: argparse.Namespace, layout: Layout, store: GitStore, plan: Pl
     log = layout.logs / f"apply-{started.strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
     ctx = Context(
         layout=layout, store=store, clock=now, record=read_record(layout),
-        scripts=ScriptRunner(root=layout.root, log=log, timeout=args.script_timeout),
+        scripts=ScriptRunner(root=layout.root, log=log, runs=layout.runs,
+                             timeout=args.script_timeout, lock_fd=getattr(lock, "fd", None),
+                             note=getattr(lock, "note", None)),
     )
     print()
     execute(plan, ctx, progress=print)
     app = ctx.record.app
-    where = f"{app.name} {'running' if app.running else 'installed'}" if app else "no app"
+    where = f"{app.name} {app.status}" if app else "no app"
     print(f"\nApply complete: {len(plan.steps)} steps; {where}. Script output: {log}")
     return EXIT_OK
 

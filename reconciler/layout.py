@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+_GENERATION = re.compile(r"[0-9a-f]{12}-[0-9a-f]{8}")
+_RUN = re.compile(r"[0-9a-f]{32}")
 
 
 @dataclass(frozen=True)
@@ -47,6 +49,16 @@ class Layout:
         return self.var / "state.json"
 
     @property
+    def runs(self) -> Path:
+        """Exit codes of app scripts, written by each script's guard when it ends."""
+        return self.var / "runs"
+
+    def run_result(self, run: str) -> Path:
+        if not _RUN.fullmatch(run):
+            raise ValueError(f"not a script run id: {run!r}")
+        return self.runs / f"{run}.exit"
+
+    @property
     def journal(self) -> Path:
         return self.var / "journal.jsonl"
 
@@ -67,7 +79,17 @@ class Layout:
         return self.repositories / slug(key)
 
     def generation_dir(self, app: str, generation: str) -> Path:
+        if not _GENERATION.fullmatch(generation):
+            raise ValueError(f"not a generation id: {generation!r}")
         return self.generations / slug(app) / generation
+
+    def generation_meta(self, app: str, generation: str) -> Path:
+        """What was staged into the generation (reconciler/generations.py), beside it."""
+        return self.generation_dir(app, generation).with_suffix(".json")
+
+
+def is_generation_id(name: str) -> bool:
+    return _GENERATION.fullmatch(name) is not None
 
 
 def slug(key: str) -> str:

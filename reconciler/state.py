@@ -2,34 +2,104 @@
 
 Every write is atomic and bumps the serial; the first write fixes the lineage. A record
 written by a newer lpam is refused by name instead of being misread.
+
+Reading also *settles* the record: when the app's status says a script was under way
+(`starting`, run `r1`) and that run's exit file (written by the script's guard, see
+adapters/scripts.py) says it ended with 0, the script finished after lpam died — the
+record reads as if lpam had seen it (`running`), so the script is never run twice. A run
+with no exit file, or a failing one, leaves the status as it is: the step runs again.
+
+A missing record on a machine that has generations on disk means the record was lost or
+moved aside: each generation becomes a *stray* (schemas/record.py), so that the next apply
+stops and uninstalls it with its own scripts before installing anything. A damaged record
+is refused, and the hint says how to get to that safe path.
 """
 
 from __future__ import annotations
 
 import json
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 from reconciler.atomic import write_atomic
+from reconciler.errors import ConfigError
+from reconciler.generations import installed_on_disk
 from reconciler.layout import Layout
-from schemas.record import StateRecord
+from reconciler.reading import MIB, read_bounded
+from schemas.record import AppRecord, StateRecord, Stray
+
+LIMIT = 4 * MIB
+
+DAMAGED_HINT = (
+    "move it aside (`mv {path} {path}.damaged`): the next `lpam apply` then stops and "
+    "uninstalls every app it finds installed under {generations} before it installs the "
+    "desired one"
+)
+
+ExitCode = Callable[[str], int | None]
+
+SETTLED = {"installing": "installed", "starting": "running", "stopping": "installed"}
 
 
 def read_record(layout: Layout) -> StateRecord:
-    """The last recorded state, or an empty record on a machine lpam never touched."""
+    """The last recorded state, settled; on a machine with no record, the strays on disk."""
     path = layout.state_record
+    hint = DAMAGED_HINT.format(path=path, generations=layout.generations)
     try:
-        text = path.read_text(encoding="utf-8")
+        data = read_bounded(path, limit=LIMIT, follow_symlinks=False, what="state record",
+                            hint=hint)
     except FileNotFoundError:
-        return StateRecord()
-    return parse_record(text, path)
+        return StateRecord(strays=[Stray(name=g.app, generation=g.generation, params=g.params)
+                                   for g in installed_on_disk(layout)])
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"the state record is not UTF-8 text (byte {exc.start})",
+                          path=path, hint=hint) from None
+    record = parse_record(text, path, hint=hint)
+    return settle(record, exit_code=lambda run: run_result(layout, run))
 
 
-def parse_record(text: str, path: Path) -> StateRecord:
+def parse_record(text: str, path: Path, *, hint: str | None = None) -> StateRecord:
     from reconciler.documents import parse_json
 
-    return parse_json("state-record", text, path, StateRecord,
-                      hint="restore it from a backup, or remove it to start afresh")
+    hint = hint or DAMAGED_HINT.format(path=path, generations="var/lib/lpam/generations")
+    try:
+        return parse_json("state-record", text, path, StateRecord, hint=hint)
+    except RecursionError:
+        raise ConfigError("the state record is nested too deeply to be one lpam wrote",
+                          path=path, hint=hint) from None
+
+
+def settle(record: StateRecord, *, exit_code: ExitCode) -> StateRecord:
+    """The record as it stands once the script runs it was waiting for are accounted for."""
+    strays = []
+    for stray in record.strays:
+        finished = stray.run is not None and exit_code(stray.run) == 0
+        if finished and stray.pending == "uninstall":
+            continue
+        if finished:
+            stray = stray.model_copy(update={"stopped": True, "pending": None, "run": None})
+        strays.append(stray)
+    record = record.model_copy(update={"strays": strays})
+    app = record.app
+    if app is None or app.run is None or exit_code(app.run) != 0:
+        return record
+    if app.status == "uninstalling":
+        return record.model_copy(update={"app": None})
+    status = SETTLED.get(app.status, app.status)
+    settled: AppRecord = app.model_copy(update={"status": status, "run": None})
+    return record.model_copy(update={"app": settled})
+
+
+def run_result(layout: Layout, run: str) -> int | None:
+    """The exit code a script's guard wrote for `run`, or None if it never finished."""
+    try:
+        text = read_bounded(layout.run_result(run), limit=64, follow_symlinks=False).decode()
+        return int(text.strip())
+    except (FileNotFoundError, ConfigError, UnicodeDecodeError, ValueError):
+        return None
 
 
 def write_record(layout: Layout, record: StateRecord) -> StateRecord:
@@ -39,3 +109,4 @@ def write_record(layout: Layout, record: StateRecord) -> StateRecord:
     text = json.dumps(written.model_dump(mode="json"), indent=2, sort_keys=True) + "\n"
     write_atomic(layout.state_record, text)
     return written
+

@@ -2,8 +2,9 @@
 
 Like Terraform's state it has a *lineage* (a UUID fixed when the record is first written)
 and a *serial* (incremented on every write), so a saved plan can tell whether the machine
-changed since it was made. It is rewritten atomically after every step that changes the
-machine, so after a power cut it still says exactly which steps took effect.
+changed since it was made. It is rewritten atomically before and after every script an
+apply runs, so after a power cut or a kill it says which scripts finished and which one
+may have been under way (the app's `status` and `run`, see reconciler/state.py).
 """
 
 from __future__ import annotations
@@ -12,7 +13,16 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-CURRENT_VERSION = 1
+CURRENT_VERSION = 2
+
+AppStatus = Literal["installing", "installed", "starting", "running", "stopping", "uninstalling"]
+"""Where the installed app's lifecycle stands. The -ing values are written *before* the
+script runs (intent before work, as Mender persists its state before each state's work):
+after a crash they say which script may have been cut off, so the next apply knows what
+to finish, and that the app may hold the CAN hardware even though no script completed."""
+
+ACTIVE: frozenset[str] = frozenset({"starting", "running", "stopping"})
+"""Statuses in which the app may have processes on the bus: it is stopped before uninstalling."""
 
 
 class RepositoryRecord(BaseModel):
@@ -34,17 +44,43 @@ class AppRecord(BaseModel):
     path: str = Field(description="folder of the app inside its repository")
     params: dict[str, str] = Field(default_factory=dict)
     generation: str = Field(description="directory name under generations/<app>/")
-    running: bool = False
+    status: AppStatus = "installed"
+    run: str | None = Field(
+        default=None,
+        description="id of the script run under way when the status was written; its exit "
+        "code lands in var/lib/lpam/runs/<run>.exit when it ends, even if lpam died",
+    )
+
+    @property
+    def running(self) -> bool:
+        return self.status == "running"
+
+
+class Stray(BaseModel):
+    """An app generation found installed on disk that no record knew about (the record
+    was lost or moved aside). It may hold the CAN hardware, so it is stopped and
+    uninstalled with its own scripts before any other app is installed."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    generation: str
+    params: dict[str, str] = Field(default_factory=dict)
+    stopped: bool = False
+    pending: Literal["stop", "uninstall"] | None = Field(
+        default=None, description="the script under way when the record was written")
+    run: str | None = None
 
 
 class StateRecord(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    version: Literal[1] = 1
+    version: Literal[2] = 2
     lineage: str | None = None
     serial: int = 0
     repositories: list[RepositoryRecord] = Field(default_factory=list)
     app: AppRecord | None = None
+    strays: list[Stray] = Field(default_factory=list)
 
     def repository(self, key: str) -> RepositoryRecord | None:
         return next((r for r in self.repositories if r.key == key), None)

@@ -3,8 +3,18 @@
 Scripts run as `bash SCRIPT` from an argument list, never a shell string built from
 names (the old tool's Bluetooth service was exploitable that way); cwd is the app's
 generation folder; the environment is small and explicit: LPAM_ROOT, LPAM_APP,
-LPAM_APP_DIR and the app's parameters. Each script has a timeout, after which its whole
-process group is killed; all output goes to the apply's log file.
+LPAM_APP_DIR and the app's parameters (names that change how bash or the loader behave
+are refused when the desired state is validated).
+
+A script must never outlive what lpam knows about it. Each runs under a tiny bash
+*guard* (`GUARD`), in its own process group:
+- the guard holds the apply lock's descriptor (scripts themselves do not: a daemon that
+  `start.sh` leaves behind must not hold the lock forever), so if lpam is killed, no later
+  apply starts until the script has ended;
+- the guard writes the script's exit code to `var/lib/lpam/runs/<run>.exit` when it ends,
+  even if lpam died meanwhile, so the next apply knows whether to run it again;
+- on Ctrl-C or SIGTERM lpam stops the whole group (TERM, then KILL) before it exits; a
+  script over its timeout is killed the same way.
 """
 
 from __future__ import annotations
@@ -13,13 +23,25 @@ import contextlib
 import os
 import signal
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from reconciler.errors import StepError
+from reconciler.reading import open_append
 
 PASSED_THROUGH = ("PATH", "HOME", "LANG", "LC_ALL", "TERM", "USER", "LOGNAME", "TZ")
 DEFAULT_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
+GRACE_SECONDS = 5.0
+
+# $1: exit-code file, $2: lock descriptor to keep from the script ("" for none), rest: command.
+GUARD = r"""
+res=$1; fd=$2; shift 2
+if [ -n "$fd" ]; then "$@" {fd}>&-; else "$@"; fi
+code=$?
+printf '%s\n' "$code" > "$res.tmp" && mv -f "$res.tmp" "$res"
+exit "$code"
+"""
 
 
 @dataclass(frozen=True)
@@ -28,38 +50,64 @@ class ScriptRunner:
 
     root: Path
     log: Path
+    runs: Path
     timeout: float = 600.0
+    lock_fd: int | None = None
+    note: Callable[[str], None] | None = None  # tells the lock file what is running
 
-    def run(self, app: str, app_dir: Path, script: str, params: dict[str, str]) -> bool:
-        """Run `script` if the app has it; False when it does not. StepError on failure."""
+    def run(
+        self, app: str, app_dir: Path, script: str, params: dict[str, str], *,
+        run: str, required: bool = False,
+    ) -> bool:
+        """Run `script` if the app has it; False when it has not (StepError when it must).
+        StepError on failure. `run` names the exit-code file the guard writes."""
         path = app_dir / script
         if not path.is_file():
+            if required:
+                raise StepError(
+                    f"{app}: {script} is missing from {app_dir}, though the app had it when "
+                    "it was staged",
+                    hint="something (often the app's own install.sh) deleted it; fix the "
+                    "app so it leaves its folder alone, then apply again",
+                )
             self._note(f"== {app}: no {script}, nothing to run\n")
             return False
         env = {k: os.environ[k] for k in PASSED_THROUGH if k in os.environ}
         env.setdefault("PATH", DEFAULT_PATH)
         env.update(params)
         env.update(LPAM_ROOT=str(self.root), LPAM_APP=app, LPAM_APP_DIR=str(app_dir))
-        self.log.parent.mkdir(parents=True, exist_ok=True)
+        self.runs.mkdir(parents=True, exist_ok=True)
+        result = self.runs / f"{run}.exit"
+        fd = "" if self.lock_fd is None else str(self.lock_fd)
         self._note(f"== {app}: bash {script} (in {app_dir})\n")
-        with self.log.open("ab") as out:
-            try:
-                proc = subprocess.Popen(
-                    ["bash", script], cwd=app_dir, env=env, stdin=subprocess.DEVNULL,
-                    stdout=out, stderr=subprocess.STDOUT, process_group=0,
-                )
-            except OSError as exc:
-                raise StepError(f"{app}: cannot run {script}: {exc.strerror}") from None
-            try:
-                code = proc.wait(timeout=self.timeout)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-                raise StepError(
-                    f"{app}: {script} did not finish within {self.timeout:g} s and was killed",
-                    hint=f"see {self.log}; raise --script-timeout if it needs longer",
-                ) from None
+        out = open_append(self.log)
+        try:
+            proc = subprocess.Popen(
+                ["bash", "-c", GUARD, "lpam-guard", str(result), fd, "bash", script],
+                cwd=app_dir, env=env, stdin=subprocess.DEVNULL, stdout=out,
+                stderr=subprocess.STDOUT, process_group=0,
+                pass_fds=() if self.lock_fd is None else (self.lock_fd,),
+            )
+        except OSError as exc:
+            raise StepError(f"{app}: cannot run {script}: {exc.strerror}") from None
+        finally:
+            os.close(out)
+        if self.note is not None:
+            self.note(f"running {app} {script} in process group {proc.pid}")
+        try:
+            code = proc.wait(timeout=self.timeout)
+        except subprocess.TimeoutExpired:
+            _stop_group(proc)
+            raise StepError(
+                f"{app}: {script} did not finish within {self.timeout:g} s and was killed",
+                hint=f"see {self.log}; raise --script-timeout if it needs longer",
+            ) from None
+        except BaseException:  # Ctrl-C, SIGTERM: the script must not outlive lpam
+            _stop_group(proc)
+            raise
+        finally:
+            if self.note is not None:
+                self.note("applying")
         if code != 0:
             raise StepError(
                 f"{app}: {script} failed with exit code {code}",
@@ -68,6 +116,22 @@ class ScriptRunner:
         return True
 
     def _note(self, text: str) -> None:
-        self.log.parent.mkdir(parents=True, exist_ok=True)
-        with self.log.open("a", encoding="utf-8") as out:
-            out.write(text)
+        fd = open_append(self.log)
+        try:
+            os.write(fd, text.encode())
+        finally:
+            os.close(fd)
+
+
+def _stop_group(proc: subprocess.Popen[bytes]) -> None:
+    """TERM the script's process group, then KILL whatever is left after a grace period."""
+    for sig, wait in ((signal.SIGTERM, GRACE_SECONDS), (signal.SIGKILL, None)):
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, sig)
+        try:
+            proc.wait(timeout=wait)
+            break
+        except subprocess.TimeoutExpired:
+            continue
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGKILL)  # stragglers of a group whose leader ended

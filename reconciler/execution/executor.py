@@ -2,65 +2,85 @@
 
 A failed step stops the apply at once with a message that says where the vehicle stands.
 A failure while preparing left the running app untouched. A failure in the cutover rolls
-back: the new app's half-install is uninstalled and the previous generation (kept until
-the apply succeeds) is installed and started again, so a broken app never leaves the car
-with nothing. A power cut, by contrast, is resumed forward: the next apply re-plans from
-the state record and continues where this one stopped.
+back: the steps back to the app that ran before are planned by the same rules as any plan
+(planning/lifecycle.py: whatever the new app may have started is stopped before it is
+uninstalled; an old app whose uninstall.sh failed is installed again rather than
+uninstalled twice) and journalled like any step, so the car is never left with two apps
+nor, when the old one can run, with none. With no previous app, the half-installed new one
+is removed. A power cut or a kill, by contrast, is resumed forward: the next apply
+re-plans from the state record and continues where this one stopped.
 """
 
 from __future__ import annotations
 
-import contextlib
 import uuid
 from collections.abc import Callable
 
+from reconciler import generations
 from reconciler.errors import LpamError, StepError
 from reconciler.execution.journal import Journal
-from reconciler.execution.steps import RUNNERS, Context, prune_generations, reinstall
-from schemas.plan import Phase, Plan, Step, StepKind
-from schemas.record import AppRecord
+from reconciler.execution.steps import RUNNERS, Context, prune
+from reconciler.planning.lifecycle import app_steps, target_of
+from schemas.plan import Phase, Plan, Step
+from schemas.record import ACTIVE, AppRecord
 
 
 def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None]) -> None:
     journal = Journal(ctx.layout, apply_id=str(uuid.uuid4()), plan=plan.fingerprint)
     journal.open(ctx.clock())
+    ctx.save(ctx.record)  # as read: settled, strays adopted — before any exit file is pruned
     previous = ctx.record.app
     total = len(plan.steps)
     for number, step in enumerate(plan.steps, 1):
         progress(f"[{number}/{total}] {step.id} …")
-        journal.begin(step.id, ctx.clock())
         try:
-            RUNNERS[step.kind](step, ctx)
+            _journalled(step, step.id, ctx, journal)
         except LpamError as exc:
-            journal.fail(step.id, ctx.clock(), exc.message)
-            rolled = _roll_back(step, previous, ctx, progress)
+            rolled = _roll_back(step, previous, ctx, journal, progress)
             raise StepError(
                 f"step {step.id} failed: {exc.message}.{rolled} {_where(step.phase, ctx)}",
                 hint=exc.hint or "fix the cause and run `lpam apply` again; it resumes here",
             ) from exc
-        journal.end(step.id, ctx.clock())
     journal.close(ctx.clock())
-    prune_generations(ctx)
+    prune(ctx)
+
+
+def _journalled(step: Step, label: str, ctx: Context, journal: Journal) -> None:
+    journal.begin(label, ctx.clock())
+    try:
+        RUNNERS[step.kind](step, ctx)
+    except LpamError as exc:
+        journal.fail(label, ctx.clock(), exc.message)
+        raise
+    journal.end(label, ctx.clock())
 
 
 def _roll_back(
-    step: Step, previous: AppRecord | None, ctx: Context, progress: Callable[[str], None]
+    failed: Step, previous: AppRecord | None, ctx: Context, journal: Journal,
+    progress: Callable[[str], None],
 ) -> str:
-    """After a failed cutover step, bring back the app that ran before; says what happened."""
-    if step.phase is not Phase.CUTOVER or previous is None or ctx.record.app == previous:
+    """After a failed cutover step, go back to the app that ran before; says what happened."""
+    if failed.phase is not Phase.CUTOVER:
         return ""
-    progress(f"rolling back to {previous.name} …")
+    target = None if previous is None else target_of(previous)
+    start = previous is None or previous.status in ACTIVE
+    record, app = ctx.record, ctx.record.app
+    if app is not None and previous is not None and app.status == "stopping" \
+            and app.generation == previous.generation:
+        # its stop.sh just failed: the old app is brought back up, not stopped again
+        record = record.model_copy(update={"app": app.model_copy(update={"status": "starting"})})
+    steps = app_steps(record, target, generations.present(ctx.layout), start=start)
+    if not steps:
+        return ""
+    what = f"rolling back to {previous.name}" if previous else "removing the half-installed app"
+    progress(f"{what} …")
     try:
-        if step.kind is StepKind.INSTALL:  # undo what a half-finished install.sh left
-            app, generation = str(step.args["app"]), str(step.args["generation"])
-            params = step.args.get("params")
-            with contextlib.suppress(LpamError):  # best effort: it may have left nothing
-                ctx.scripts.run(app, ctx.layout.generation_dir(app, generation),
-                                "uninstall.sh", params if isinstance(params, dict) else {})
-        reinstall(previous, ctx)
+        for step in steps:
+            progress(f"  rollback: {step.id} …")
+            _journalled(step, f"rollback/{step.id}", ctx, journal)
     except LpamError as again:
-        return f" Rolling back to {previous.name} failed too: {again.message}."
-    return f" Rolled back to {previous.name}."
+        return f" {what.capitalize()} failed too: {again.message}."
+    return f" Rolled back to {previous.name}." if previous else " Removed the new app again."
 
 
 def _where(phase: Phase, ctx: Context) -> str:
@@ -69,5 +89,6 @@ def _where(phase: Phase, ctx: Context) -> str:
     app = ctx.record.app
     if app is None:
         return "No app is installed now."
-    state = "running" if app.running else "installed, not running"
+    state = {"running": "running", "installed": "installed, not running"}.get(
+        app.status, f"{app.status} when the script failed")
     return f"Installed now: {app.name} ({state})."

@@ -9,16 +9,17 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from reconciler import generations
 from reconciler.execution.journal import interrupted_steps
 from reconciler.layout import Layout
 from reconciler.planning.model import Observed, RepoObserved, Targets
 from reconciler.state import read_record
 
 if TYPE_CHECKING:
-    from reconciler.adapters.git import GitStore
+    from reconciler.execution.ports import Store
 
 
-def observe(layout: Layout, store: GitStore, targets: Targets) -> Observed:
+def observe(layout: Layout, store: Store, targets: Targets) -> Observed:
     record = read_record(layout)
     wanted = {t.key: t for t in targets.repositories}
     keys = sorted(set(wanted) | {r.key for r in record.repositories})
@@ -36,16 +37,6 @@ def observe(layout: Layout, store: GitStore, targets: Targets) -> Observed:
     return Observed(
         record=record,
         repositories=repositories,
-        generations=frozenset(_generations(layout)),
+        generations=generations.present(layout),
         interrupted=tuple(interrupted_steps(layout)),
     )
-
-
-def _generations(layout: Layout) -> list[str]:
-    if not layout.generations.is_dir():
-        return []
-    return [
-        f"{app.name}/{gen.name}"
-        for app in layout.generations.iterdir() if app.is_dir()
-        for gen in app.iterdir() if gen.is_dir() and not gen.name.startswith(".")
-    ]

@@ -6,10 +6,18 @@ every no-op says why nothing needs doing, so a user reading the plan can trust i
 
 from __future__ import annotations
 
-from reconciler.planning.model import AppTarget, Observed, RepoTarget, Targets, short
+from reconciler.planning.lifecycle import keeps
+from reconciler.planning.model import (
+    AppTarget,
+    GenerationKey,
+    Observed,
+    RepoTarget,
+    Targets,
+    short,
+)
 from schemas.names import is_hex_commit
 from schemas.plan import Action, Change
-from schemas.record import AppRecord, RepositoryRecord
+from schemas.record import AppRecord, RepositoryRecord, StateRecord
 
 
 def diff(targets: Targets, observed: Observed) -> list[Change]:
@@ -27,6 +35,7 @@ def diff(targets: Targets, observed: Observed) -> list[Change]:
         for rec in sorted(observed.record.repositories, key=lambda r: r.key)
         if rec.key not in wanted
     ]
+    changes += _strays(observed.record)
     changes.append(_app(targets.app, observed.record.app, observed.generations))
     return changes
 
@@ -98,19 +107,46 @@ def _repository(t: RepoTarget, observed: Observed) -> Change:
 
 
 def _app_fields(
-    name: str, repository: str, commit: str | None, params: dict[str, str], running: bool | None
+    name: str, repository: str, commit: str | None, params: dict[str, str], status: str | None
 ) -> dict[str, str | bool | dict[str, str] | None]:
     fields: dict[str, str | bool | dict[str, str] | None] = {
         "name": name, "repository": repository, "commit": commit, "params": dict(params),
     }
-    if running is not None:
-        fields["running"] = running
+    if status is not None:
+        fields["status"] = status
     return fields
 
 
-def _app(t: AppTarget | None, rec: AppRecord | None, generations: frozenset[str]) -> Change:
+_CUT_OFF = {
+    "installed": "is installed but not running: started",
+    "starting": "was being started when the last apply stopped (start.sh cut off or failed): "
+    "started again",
+    "installing": "was being installed when the last apply stopped (install.sh cut off or "
+    "failed): installed again and started",
+    "stopping": "was being stopped when the last apply stopped: stopped, then started again",
+    "uninstalling": "was being uninstalled when the last apply stopped: installed again and "
+    "started",
+}
+
+
+def _strays(record: StateRecord) -> list[Change]:
+    return [
+        Change(
+            address=f"stray.{s.name}@{s.generation}", action=Action.DELETE,
+            before={"name": s.name, "generation": s.generation, "params": dict(s.params)},
+            reason=f"{s.name} ({s.generation}) is installed on disk but in no state record "
+            "(the record was lost or moved aside): "
+            + ("uninstalled" if s.stopped else "stopped and uninstalled")
+            + " with its own scripts before any app is installed",
+        )
+        for s in record.strays
+    ]
+
+
+def _app(t: AppTarget | None, rec: AppRecord | None,
+         generations: frozenset[GenerationKey]) -> Change:
     before = (
-        _app_fields(rec.name, rec.repository, rec.commit, rec.params, rec.running) if rec else None
+        _app_fields(rec.name, rec.repository, rec.commit, rec.params, rec.status) if rec else None
     )
     after = _app_fields(t.name, t.repository, t.commit, t.params, None) if t else None
     if t is None and rec is None:
@@ -139,23 +175,21 @@ def _app(t: AppTarget | None, rec: AppRecord | None, generations: frozenset[str]
     else:
         unchanged = t.tree == rec.tree and same_params
         detail = f"folder {rec.tree[:12]} → {t.tree[:12]}"
-    if unchanged and f"{rec.name}/{rec.generation}" not in generations:
+    if unchanged and not keeps(rec, t, generations):
         return Change(
             address="app", action=Action.UPDATE, before=before, after=after,
             reason=f"{t.name}: its installed folder is missing from disk: copied out of git "
             "again and reinstalled",
         )
-    if unchanged:
-        if rec.running:
-            moved = "" if t.commit == rec.commit else f"; repository now at {short(t.commit)}"
-            return Change(
-                address="app", action=Action.NOOP, before=before, after=after,
-                reason=f"{t.name} installed and running, app folder unchanged{moved}",
-            )
+    if unchanged and rec.status == "running":
+        moved = "" if t.commit == rec.commit else f"; repository now at {short(t.commit)}"
         return Change(
-            address="app", action=Action.UPDATE, before=before, after=after,
-            reason=f"{t.name} is installed but not running: started",
+            address="app", action=Action.NOOP, before=before, after=after,
+            reason=f"{t.name} installed and running, app folder unchanged{moved}",
         )
+    if unchanged:
+        return Change(address="app", action=Action.UPDATE, before=before, after=after,
+                      reason=f"{t.name} {_CUT_OFF[rec.status]}")
     what = [] if same_params else ["parameters changed"]
     if t.tree is None or t.tree != rec.tree:
         what.insert(0, f"new version ({detail})")

@@ -15,7 +15,8 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from reconciler.errors import PlanError
-from reconciler.planning.model import AppTarget, Observed, Targets
+from reconciler.planning.lifecycle import app_steps, step
+from reconciler.planning.model import Observed, Targets
 from schemas.plan import Action, Change, Phase, Step, StepKind
 
 if TYPE_CHECKING:
@@ -32,62 +33,15 @@ def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> li
         change = by_address.get(f"repository.{t.key}")
         if change is not None and change.action is not Action.NOOP:
             steps.append(
-                _step(StepKind.CHECKOUT, Phase.PREPARE, t.key,
+                step(StepKind.CHECKOUT, Phase.PREPARE, t.key,
                       key=t.key, url=t.url, ref=t.ref, commit=t.commit)
             )
     for change in changes:
         if change.action is Action.DELETE and change.address.startswith("repository."):
             key = change.address.removeprefix("repository.")
-            steps.append(_step(StepKind.REMOVE, Phase.CLEANUP, key, key=key))
-    app_change = by_address.get("app")
-    if app_change is not None and app_change.action is not Action.NOOP:
-        steps += _app_steps(app_change, targets.app, observed)
+            steps.append(step(StepKind.REMOVE, Phase.CLEANUP, key, key=key))
+    steps += app_steps(observed.record, targets.app, observed.generations)
     return order(steps)
-
-
-def _step(kind: StepKind, phase: Phase, target: str, **args: str | dict[str, str] | None) -> Step:
-    return Step(id=f"{kind.value}:{target}", kind=kind, phase=phase, args=args)
-
-
-def _app_steps(change: Change, new: AppTarget | None, observed: Observed) -> list[Step]:
-    old = observed.record.app
-    steps: list[Step] = []
-    start_only = (
-        new is not None and old is not None and change.action is Action.UPDATE
-        and (old.name, old.repository, old.params) == (new.name, new.repository, new.params)
-        and (new.tree == old.tree or (new.tree is None and new.commit == old.commit))
-        and f"{old.name}/{old.generation}" in observed.generations
-    )
-    if start_only:
-        assert old is not None
-        return [_step(StepKind.START, Phase.CUTOVER, f"{old.name}@{old.generation}",
-                      app=old.name, generation=old.generation)]
-    new_gen = new.generation if new is not None else None
-    if new is not None:
-        gen = new_gen or "(known after fetch)"
-        if f"{new.name}/{gen}" not in observed.generations:
-            steps.append(_step(
-                StepKind.STAGE, Phase.PREPARE, f"{new.name}@{gen}", app=new.name,
-                repository=new.repository, commit=new.commit, path=new.path, tree=new.tree,
-                generation=gen,
-            ))
-    if old is not None:
-        target = f"{old.name}@{old.generation}"
-        if old.running:
-            steps.append(_step(StepKind.STOP, Phase.CUTOVER, target,
-                               app=old.name, generation=old.generation))
-        steps.append(_step(StepKind.UNINSTALL, Phase.CUTOVER, target,
-                           app=old.name, generation=old.generation))
-    if new is not None:
-        gen = new_gen or "(known after fetch)"
-        target = f"{new.name}@{gen}"
-        common: dict[str, str | dict[str, str] | None] = {
-            "app": new.name, "generation": gen, "repository": new.repository,
-            "commit": new.commit, "path": new.path, "tree": new.tree,
-        }
-        steps.append(_step(StepKind.INSTALL, Phase.CUTOVER, target, params=new.params, **common))
-        steps.append(_step(StepKind.START, Phase.CUTOVER, target, **common))
-    return steps
 
 
 def order(steps: Iterable[Step]) -> list[Step]:

@@ -10,8 +10,25 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
+from reconciler.layout import slug
 from schemas.record import StateRecord
+
+
+class GenerationKey(NamedTuple):
+    """A generation folder on disk: (the app's folder name, the generation id).
+
+    Typed and built in one place (`of`) so that an app name and the folder it lives in
+    are never compared as loose strings (`alpha.` lives in `alpha`; comparing the name to
+    the folder reinstalled it on every apply)."""
+
+    folder: str
+    generation: str
+
+    @classmethod
+    def of(cls, app: str, generation: str) -> GenerationKey:
+        return cls(slug(app), generation)
 
 
 @dataclass(frozen=True)
@@ -64,7 +81,7 @@ class RepoObserved:
 class Observed:
     record: StateRecord
     repositories: dict[str, RepoObserved]
-    generations: frozenset[str] = frozenset()
+    generations: frozenset[GenerationKey] = frozenset()
     interrupted: tuple[str, ...] = ()
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from schemas.plan import Action, Plan
 
-_ORDER = ("name", "repository", "url", "ref", "commit", "params", "running")
+_ORDER = ("name", "repository", "url", "ref", "commit", "generation", "params", "status")
 
 
 def _value(value: object) -> str:

@@ -225,9 +225,12 @@ def test_failing_script_stops_the_apply_with_a_clear_message(
     done = lpam("apply", "--yes")
     assert done.returncode == 1
     assert "start.sh failed with exit code 3" in done.stderr
-    assert "Installed now: alpha (installed, not running)" in done.stderr
+    # whatever start.sh may have started is stopped: a failed first install leaves nothing
+    assert "Removed the new app again. No app is installed now." in done.stderr
     assert "Traceback" not in done.stderr
-    assert "alpha@" in lpam("plan").stdout and "not running" in lpam("plan").stdout
+    assert lpam.events() == ["alpha:install:", "alpha:start:", "alpha:stop:", "alpha:uninstall:"]
+    assert lpam.status()["app"] is None
+    assert "+ app: install alpha" in lpam("plan").stdout
 
 
 def test_scripts_get_params_a_log_and_a_timeout(
@@ -251,7 +254,7 @@ def test_scripts_get_params_a_log_and_a_timeout(
     assert len(logs) == 1
     text = logs[0].read_text()
     generation = lpam.root / "var/lib/lpam/generations/alpha"
-    gen_dir = next(generation.iterdir())
+    gen_dir = next(p for p in generation.iterdir() if p.is_dir())
     assert f"dir={gen_dir} app_dir={gen_dir} rate=10" in text
 
 
@@ -268,7 +271,8 @@ def test_failed_cutover_rolls_back_to_the_previous_app(
     assert done.returncode == 1
     assert f"{failing}.sh failed with exit code 4" in done.stderr
     assert "Rolled back to alpha. Installed now: alpha (running)." in done.stderr
-    beta_ran = ["beta:install:"] + (["beta:start:"] if failing == "start" else [])
+    # a failed start.sh may have started something: it is stopped before it is uninstalled
+    beta_ran = ["beta:install:"] + (["beta:start:", "beta:stop:"] if failing == "start" else [])
     assert lpam.events() == [
         "alpha:install:", "alpha:start:", "alpha:stop:", "alpha:uninstall:",
         *beta_ran, "beta:uninstall:", "alpha:install:", "alpha:start:"]

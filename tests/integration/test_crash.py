@@ -4,6 +4,7 @@ the CAN hardware must never get two apps."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -78,7 +79,9 @@ def test_sigkill_during_cutover_then_apply_converges(
     for pid in victims[1:]:  # the killed script and its sleep are gone too
         wait_gone(pid)
     assert proc.returncode == -signal.SIGKILL
-    assert lpam.status()["app"] is None  # alpha is uninstalled, beta is not installed yet
+    # alpha is uninstalled; the record says beta's install.sh may have been cut off
+    record = json.loads((lpam.root / "var/lib/lpam/state.json").read_text())
+    assert (record["app"]["name"], record["app"]["status"]) == ("beta", "installing")
     (lpam.root / "killed-once").touch()
     again = lpam("apply", "--yes")
     assert again.returncode == 0, again.stderr

@@ -10,15 +10,19 @@ from typing import Any
 import pytest
 
 import migrations
-from migrations import CURRENT, STEPS, desired_state_v0_to_v1, upgrade
+from migrations import CURRENT, STEPS, desired_state_v0_to_v1, state_record_v1_to_v2, upgrade
 from migrations.step import MigrationError
 from reconciler.errors import ConfigError, VersionError
 from reconciler.loading import load
 from schemas.desired import DesiredState
+from schemas.record import StateRecord
 
 FIXTURES = Path(migrations.__file__).parent / "fixtures"
 # Every registered step and the fixture folder that proves it.
-STEP_FIXTURES = {("desired-state", "0.0"): FIXTURES / "desired-state" / "v0_to_v1"}
+STEP_FIXTURES = {
+    ("desired-state", "0.0"): FIXTURES / "desired-state" / "v0_to_v1",
+    ("state-record", "1"): FIXTURES / "state-record" / "v1_to_v2",
+}
 PATH = Path("doc.yaml")
 
 
@@ -28,6 +32,7 @@ def pairs(folder: Path) -> list[tuple[Path, Path]]:
 
 
 V0_PAIRS = pairs(STEP_FIXTURES[("desired-state", "0.0")])
+RECORD_PAIRS = pairs(STEP_FIXTURES[("state-record", "1")])
 
 
 def read(path: Path) -> Any:
@@ -67,6 +72,23 @@ def test_upgrade_chain_matches_fixture_and_validates(before: Path, after: Path) 
     result = upgrade("desired-state", read(before), path=before)
     assert result == read(after)
     DesiredState.model_validate(result)
+
+
+@pytest.mark.parametrize(("before", "after"), RECORD_PAIRS, ids=lambda p: p.name)
+def test_state_record_v1_to_v2_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert state_record_v1_to_v2.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    record = StateRecord.model_validate(upgrade("state-record", data, path=before))
+    assert record.app is None or record.app.running is data["app"]["running"]
+
+
+def test_state_record_v1_with_a_bad_flag_is_located() -> None:
+    doc = load(PATH, "version: 1\napp:\n  name: x\n  running: maybe\n")
+    with pytest.raises(ConfigError) as info:
+        upgrade("state-record", doc.data, path=PATH, position=doc.position)
+    assert (info.value.line, info.value.column) == (4, 3)
 
 
 @pytest.mark.parametrize("version", [1, "1", " 1 "])
@@ -140,11 +162,10 @@ def test_version_that_is_not_a_number(version: object) -> None:
     assert "must be a number" in info.value.message
 
 
-@pytest.mark.parametrize("kind", ["state-record", "plan"])
-def test_other_kinds_only_know_version_1(kind: str) -> None:
-    assert upgrade(kind, {"version": 1, "serial": 4}, path=PATH) == {"version": 1, "serial": 4}
+def test_plans_only_know_version_1() -> None:
+    assert upgrade("plan", {"version": 1, "serial": 4}, path=PATH) == {"version": 1, "serial": 4}
     with pytest.raises(VersionError):
-        upgrade(kind, {"version": "0.0"}, path=PATH)
+        upgrade("plan", {"version": "0.0"}, path=PATH)
 
 
 def test_unknown_kind_is_a_programming_error() -> None:

@@ -12,6 +12,7 @@ from reconciler.planning.diff import diff
 from reconciler.planning.graph import order, sort_graph
 from reconciler.planning.model import (
     AppTarget,
+    GenerationKey,
     Observed,
     RepoObserved,
     RepoTarget,
@@ -21,7 +22,7 @@ from reconciler.planning.model import (
 from reconciler.planning.plan import check_plan, make_plan
 from reconciler.planning.render import render
 from schemas.plan import Action, Phase, Step, StepKind
-from schemas.record import AppRecord, RepositoryRecord, StateRecord
+from schemas.record import AppRecord, RepositoryRecord, StateRecord, Stray
 
 A, B, C = "a" * 40, "b" * 40, "c" * 40
 T1, T2 = "1" * 40, "2" * 40
@@ -41,7 +42,7 @@ def installed(name: str = "x", tree: str = T1, running: bool = True,
               params: dict[str, str] | None = None) -> AppRecord:
     return AppRecord(name=name, repository="o/apps", commit=A, tree=tree, path=name,
                      params=params or {}, generation=generation_id(tree, params or {}),
-                     running=running)
+                     status="running" if running else "installed")
 
 
 def observed(*, commit: str | None = A, app_rec: AppRecord | None = None, head: str | None = None,
@@ -53,7 +54,8 @@ def observed(*, commit: str | None = A, app_rec: AppRecord | None = None, head: 
     obs = {} if commit is None else {
         "o/apps": RepoObserved(key="o/apps", present=True, head=head or commit, local_edits=edits)
     }
-    gens = frozenset() if app_rec is None else frozenset({f"{app_rec.name}/{app_rec.generation}"})
+    gens = frozenset() if app_rec is None else frozenset(
+        {GenerationKey.of(app_rec.name, app_rec.generation)})
     return Observed(record=record, repositories=obs, generations=gens)
 
 
@@ -177,3 +179,70 @@ def test_missing_generation_folder_is_restaged_and_reinstalled() -> None:
     assert plan.changes[-1].action is Action.UPDATE and "missing" in plan.changes[-1].reason
     assert [s.kind for s in plan.steps] == [
         StepKind.STAGE, StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START]
+
+
+@pytest.mark.parametrize(("status", "kinds"), [
+    ("running", []),
+    ("installed", [StepKind.START]),
+    ("starting", [StepKind.START]),
+    ("installing", [StepKind.INSTALL, StepKind.START]),
+    ("stopping", [StepKind.STOP, StepKind.START]),
+    ("uninstalling", [StepKind.INSTALL, StepKind.START]),
+])
+def test_a_cut_off_script_is_finished_or_redone_never_assumed(
+    status: str, kinds: list[StepKind]
+) -> None:
+    rec = installed().model_copy(update={"status": status})
+    plan = make_plan(Targets((repo(),), app()), observed(app_rec=rec), now=NOW, lpam_version="t")
+    assert [s.kind for s in plan.steps] == kinds
+    assert plan.has_changes is bool(kinds)
+    if kinds:
+        reason = plan.changes[-1].reason
+        assert "when the last apply stopped" in reason or "not running" in reason
+
+
+@pytest.mark.parametrize("status", ["starting", "running", "stopping"])
+def test_an_app_that_may_be_active_is_stopped_before_another_is_installed(status: str) -> None:
+    rec = installed("x").model_copy(update={"status": status})
+    plan = make_plan(Targets((repo(),), app("y", tree=T2)), observed(app_rec=rec), now=NOW,
+                     lpam_version="t")
+    kinds = [s.kind for s in plan.steps if s.phase is Phase.CUTOVER]
+    assert kinds == [StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START]
+
+
+@pytest.mark.parametrize("status", ["installing", "installed", "uninstalling"])
+def test_an_inactive_app_is_uninstalled_without_stop(status: str) -> None:
+    rec = installed("x").model_copy(update={"status": status})
+    plan = make_plan(Targets((repo(),), app("y", tree=T2)), observed(app_rec=rec), now=NOW,
+                     lpam_version="t")
+    kinds = [s.kind for s in plan.steps if s.phase is Phase.CUTOVER]
+    assert kinds == [StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START]
+
+
+def test_strays_found_on_disk_are_stopped_and_uninstalled_before_any_install() -> None:
+    record = StateRecord(strays=[Stray(name="x", generation=installed("x").generation,
+                                       params={"K": "1"})])
+    obs = Observed(record=record, repositories={},
+                   generations=frozenset({GenerationKey.of("x", installed("x").generation)}))
+    plan = make_plan(Targets((repo(),), app("y", tree=T2)), obs, now=NOW, lpam_version="t")
+    ids = [s.id for s in plan.steps]
+    stray = f"x@{installed('x').generation} (found on disk)"
+    assert ids.index(f"stop:{stray}") < ids.index(f"uninstall:{stray}") < ids.index(
+        f"install:y@{generation_id(T2, {})}")
+    assert plan.steps[ids.index(f"stop:{stray}")].args["params"] == {"K": "1"}
+    change = next(c for c in plan.changes if c.address.startswith("stray."))
+    assert change.action is Action.DELETE and "no state record" in change.reason
+    # the same app wanted again: it is still cycled through its own scripts first
+    same = make_plan(Targets((repo(),), app("x")), obs, now=NOW, lpam_version="t")
+    assert [s.kind for s in same.steps if s.phase is Phase.CUTOVER] == [
+        StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START]
+
+
+def test_an_app_name_that_is_not_its_folder_name_is_not_reinstalled() -> None:
+    rec = installed("alpha.")  # lives in generations/alpha/
+    obs = Observed(record=StateRecord(lineage="L", serial=3, repositories=[
+        RepositoryRecord(key="o/apps", url="git://h/apps", ref="main", commit=A)], app=rec),
+        repositories={"o/apps": RepoObserved(key="o/apps", present=True, head=A)},
+        generations=frozenset({GenerationKey("alpha", rec.generation)}))
+    plan = make_plan(Targets((repo(),), app("alpha.")), obs, now=NOW, lpam_version="t")
+    assert plan.steps == []

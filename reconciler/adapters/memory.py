@@ -1,0 +1,134 @@
+"""In-memory twins of the executor's ports, for fast tests of the real steps.
+
+`MemoryStore` holds repositories as plain dicts (commit → folder → (tree, files));
+`MemoryScripts` runs no process: it keeps a pessimistic model of the vehicle — which apps
+are installed, which may be active on the CAN bus — and records a `violation` whenever a
+script would give the bus a second app. A failing script is assumed to have done its harm
+(a failed start.sh may have started things; a failed uninstall.sh left the app installed).
+Both pass the same contract suite as the real adapters (tests/contract/).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from reconciler.errors import GitError, RefNotFoundError, StepError
+from reconciler.layout import Layout
+
+Folder = tuple[str, dict[str, str]]  # (tree hash, file name → text)
+
+
+@dataclass
+class MemoryStore:
+    """Remotes (url → commit → folder → Folder) and local checkouts (key → url, head).
+    With a `layout`, each checkout also has its (empty) folder, as observe looks for it."""
+
+    layout: Layout | None = None
+    remotes: dict[str, dict[str, dict[str, Folder]]] = field(default_factory=dict)
+    checkouts: dict[str, tuple[str, str | None]] = field(default_factory=dict)
+    fetched: dict[str, set[str]] = field(default_factory=dict)
+    fetches: int = 0
+
+    def origin_url(self, key: str) -> str | None:
+        return self.checkouts[key][0] if key in self.checkouts else None
+
+    def has_commit(self, key: str, commit: str) -> bool:
+        return commit in self.fetched.get(key, set())
+
+    def head(self, key: str) -> str | None:
+        return self.checkouts[key][1] if key in self.checkouts else None
+
+    def local_edits(self, key: str) -> list[str]:
+        return []
+
+    def fetch(self, key: str, url: str) -> None:
+        if url not in self.remotes:
+            raise GitError(f"{key}: cannot reach {url}")
+        self.fetches += 1
+        if self.layout is not None:
+            self.layout.repository_dir(key).mkdir(parents=True, exist_ok=True)
+        self.fetched[key] = set(self.remotes[url])
+        self.checkouts[key] = (url, self.head(key))
+
+    def checkout(self, key: str, commit: str) -> None:
+        if not self.has_commit(key, commit):
+            raise RefNotFoundError(f"{key}: commit {commit} is not in the store")
+        self.checkouts[key] = (self.checkouts[key][0], commit)
+
+    def remove(self, key: str) -> None:
+        if self.layout is not None:
+            shutil.rmtree(self.layout.repository_dir(key), ignore_errors=True)
+        self.checkouts.pop(key, None)
+        self.fetched.pop(key, None)
+
+    def export_folder(self, key: str, commit: str, folder: str, dest: Path) -> str:
+        url = self.origin_url(key)
+        found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
+        if found is None or not self.has_commit(key, commit):
+            raise RefNotFoundError(f"{key}: there is no folder '{folder}' at commit {commit}")
+        tree, files = found
+        dest.mkdir(parents=True)
+        for name, text in files.items():
+            (dest / name).write_text(text)
+            os.chmod(dest / name, 0o755)
+        return tree
+
+
+class Crash(BaseException):
+    """lpam dying (SIGKILL, power cut) at a chosen script: not an LpamError, not caught."""
+
+
+@dataclass
+class MemoryScripts:
+    """Script runs against a model of the vehicle; `calls` is the trace an operator reads."""
+
+    runs_dir: Path
+    calls: list[str] = field(default_factory=list)
+    installed: set[str] = field(default_factory=set)
+    active: set[str] = field(default_factory=set)
+    violations: list[str] = field(default_factory=list)
+    fail: set[str] = field(default_factory=set)  # "app:script" that exit 1 (once each)
+    crash: Callable[[str], str | None] = lambda call: None  # "before" | "during" | "after"
+
+    def run(
+        self, app: str, app_dir: Path, script: str, params: dict[str, str], *,
+        run: str, required: bool = False,
+    ) -> bool:
+        call = f"{app}:{script}"
+        if not (app_dir / script).is_file():
+            if required:
+                raise StepError(f"{app}: {script} is missing from {app_dir}")
+            return False
+        when = self.crash(call)
+        if when == "before":
+            raise Crash(call)
+        self.calls.append(call)
+        self._effect(app, script)
+        if when == "during":
+            raise Crash(call)  # cut off: no exit code is ever written
+        code = 1 if call in self.fail else 0
+        self.fail.discard(call)
+        self.runs_dir.mkdir(parents=True, exist_ok=True)
+        (self.runs_dir / f"{run}.exit").write_text(f"{code}\n")  # what the guard does
+        if when == "after":
+            raise Crash(call)
+        if code:
+            raise StepError(f"{app}: {script} failed with exit code {code}")
+        return True
+
+    def _effect(self, app: str, script: str) -> None:
+        others = (self.installed | self.active) - {app}
+        if script in ("install.sh", "start.sh") and others:
+            self.violations.append(f"{app} {script} while {sorted(others)} on the vehicle")
+        if script == "install.sh":
+            self.installed.add(app)
+        elif script == "start.sh":
+            self.active.add(app)
+        elif script == "stop.sh" and f"{app}:stop.sh" not in self.fail:
+            self.active.discard(app)
+        elif script == "uninstall.sh" and f"{app}:uninstall.sh" not in self.fail:
+            self.installed.discard(app)
