@@ -245,8 +245,8 @@ def _execute(
     ctx = Context(
         layout=layout, store=store, clock=now, record=read_record(layout),
         scripts=ScriptRunner(root=layout.root, log=log, runs=layout.runs,
-                             timeout=args.script_timeout, lock_fd=getattr(lock, "fd", None),
-                             note=getattr(lock, "note", None)),
+                             timeout=args.script_timeout, lock_fd=lock.fd,
+                             note=lock.note),
     )
     print()
     execute(plan, ctx, progress=print)
