@@ -1,0 +1,129 @@
+"""One contract for every repository store: the real GitStore (dulwich, a real git daemon
+on 127.0.0.1) and the in-memory MemoryStore the property tests drive the executor with.
+
+What the executor relies on is written here once; a twin that drifts from the real
+store fails the same test the real store passes, so a property proven with the twin is
+a property of the steps, not of a convenient fake.
+"""
+
+from __future__ import annotations
+
+import stat
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from reconciler.adapters.git import GitStore
+from reconciler.adapters.memory import MemoryStore
+from reconciler.errors import GitError, RefNotFoundError
+from reconciler.execution.ports import Store
+from reconciler.layout import Layout
+from tests.gitserver import GitDaemon, RepoBuilder
+
+KEY = "apps"
+
+
+@dataclass
+class Remote:
+    """What the remote holds: two commits of one app folder, with their tree hashes."""
+
+    url: str
+    first: str
+    second: str
+    trees: dict[str, str]  # commit → tree hash of alpha/
+    files: dict[str, dict[str, str]]  # commit → file name → text
+
+
+def build(repo: RepoBuilder, url: str) -> Remote:
+    files = {"run.sh": "echo one\n"}
+    repo.write("alpha/run.sh", files["run.sh"], executable=True)
+    first = repo.commit("one")
+    second = repo.commit("two", {"alpha/run.sh": "echo two\n"})
+    repo.push()
+    trees = {c: repo.rev(f"{c}:alpha") for c in (first, second)}
+    return Remote(url, first, second, trees,
+                  {first: files, second: {"run.sh": "echo two\n"}})
+
+
+def memory_store(layout: Layout, remote: Remote) -> MemoryStore:
+    folders = {c: {"alpha": (remote.trees[c], remote.files[c])} for c in remote.trees}
+    return MemoryStore(layout=layout, remotes={remote.url: folders})
+
+
+def git_store(layout: Layout, remote: Remote) -> GitStore:
+    return GitStore(layout, timeout=10)
+
+
+@pytest.fixture(params=[git_store, memory_store], ids=["git", "memory"])
+def world(
+    request: pytest.FixtureRequest, tmp_path: Path, git_daemon: GitDaemon,
+    make_repo: Callable[[str], RepoBuilder],
+) -> Iterator[tuple[Store, Remote, Layout]]:
+    remote = build(make_repo("apps.git"), git_daemon.url("apps.git"))
+    layout = Layout(tmp_path / "root")
+    factory: Callable[[Layout, Remote], Store] = request.param
+    yield factory(layout, remote), remote, layout
+
+
+def test_fetch_brings_every_commit_and_records_the_origin(
+    world: tuple[Store, Remote, Layout],
+) -> None:
+    store, remote, _ = world
+    assert store.origin_url(KEY) is None and not store.has_commit(KEY, remote.first)
+    store.fetch(KEY, remote.url)
+    assert store.origin_url(KEY) == remote.url
+    assert store.has_commit(KEY, remote.first) and store.has_commit(KEY, remote.second)
+    assert not store.has_commit(KEY, "0" * 40)
+    assert store.local_edits(KEY) == []
+
+
+def test_checkout_moves_head_and_refuses_unknown_commits(
+    world: tuple[Store, Remote, Layout],
+) -> None:
+    store, remote, _ = world
+    store.fetch(KEY, remote.url)
+    store.checkout(KEY, remote.first)
+    assert store.head(KEY) == remote.first
+    store.checkout(KEY, remote.second)
+    assert store.head(KEY) == remote.second
+    with pytest.raises(RefNotFoundError):
+        store.checkout(KEY, "1" * 40)
+    assert store.head(KEY) == remote.second
+
+
+def test_export_copies_the_folder_at_a_commit_with_its_tree_hash(
+    world: tuple[Store, Remote, Layout], tmp_path: Path,
+) -> None:
+    store, remote, _ = world
+    store.fetch(KEY, remote.url)
+    dest = tmp_path / "gen"
+    assert store.export_folder(KEY, remote.first, "alpha", dest) == remote.trees[remote.first]
+    assert (dest / "run.sh").read_text() == "echo one\n"
+    assert (dest / "run.sh").stat().st_mode & stat.S_IXUSR
+    with pytest.raises(RefNotFoundError):
+        store.export_folder(KEY, remote.first, "nowhere", tmp_path / "other")
+    assert not (tmp_path / "other").exists()
+
+
+def test_an_unreachable_remote_is_a_git_error_and_changes_nothing(
+    world: tuple[Store, Remote, Layout],
+) -> None:
+    store, remote, _ = world
+    store.fetch(KEY, remote.url)
+    store.checkout(KEY, remote.first)
+    with pytest.raises(GitError):
+        store.fetch(KEY, remote.url.replace("apps.git", "missing.git"))
+    assert store.origin_url(KEY) == remote.url and store.head(KEY) == remote.first
+
+
+def test_remove_forgets_the_checkout(world: tuple[Store, Remote, Layout]) -> None:
+    store, remote, layout = world
+    store.fetch(KEY, remote.url)
+    store.checkout(KEY, remote.first)
+    store.remove(KEY)
+    assert store.origin_url(KEY) is None and store.head(KEY) is None
+    assert not store.has_commit(KEY, remote.first)
+    assert not layout.repository_dir(KEY).exists()
+    store.remove(KEY)  # removing what is gone is not an error
