@@ -49,7 +49,7 @@ def phases(desired_path: Path, root: Path) -> dict[str, float]:
     from reconciler.documents import load_desired
     from reconciler.layout import Layout
     from reconciler.observe.machine import observe
-    from reconciler.observe.targets import resolve
+    from reconciler.observe.targets import Fetch, resolve
     from reconciler.planning.plan import make_plan
     from reconciler.planning.render import render
 
@@ -58,7 +58,7 @@ def phases(desired_path: Path, root: Path) -> dict[str, float]:
     lap("load_desired (parse + validate YAML)")
     store = GitStore(layout, timeout=60.0)
     targets = resolve(desired, base_dir=desired_path.resolve().parent, store=store,
-                           fetch=False)
+                      fetch=Fetch.OBJECTS)
     lap("resolve (refs -> commits, thread pool)")
     observed = observe(layout, store, targets)
     lap("observe (record, checkouts, journal)")

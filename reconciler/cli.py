@@ -27,6 +27,7 @@ from reconciler.layout import Layout
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
     from reconciler.adapters.git import GitStore
     from reconciler.execution.lock import Lock
+    from reconciler.observe.targets import Fetch
     from schemas.desired import DesiredState
     from schemas.plan import Plan
 
@@ -35,6 +36,11 @@ NETWORK_TIMEOUT = ("--network-timeout",)
 NETWORK_TIMEOUT_OPTIONS: dict[str, Any] = {
     "type": float, "default": 60.0, "metavar": "SECONDS",
     "help": "give up on a git server that does not answer for this long (default 60)",
+}
+LOCK_TIMEOUT = ("--lock-timeout",)
+LOCK_TIMEOUT_OPTIONS: dict[str, Any] = {
+    "type": float, "default": 10.0, "metavar": "SECONDS",
+    "help": "wait this long for a running apply to finish (default 10)",
 }
 
 
@@ -61,14 +67,16 @@ def _parser() -> argparse.ArgumentParser:
     plan.add_argument("-o", "--out", type=Path, help="save the plan for `lpam apply PLANFILE`")
     plan.add_argument("--detailed-exitcode", action="store_true",
                       help="exit 0 without changes, 2 with changes, 1 on error")
+    plan.add_argument("--offline", action="store_true",
+                      help="use no network: plan from what the last fetch brought")
+    plan.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
     plan.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
 
     apply = sub.add_parser("apply", parents=[common], help="make the machine match")
     apply.add_argument("planfile", nargs="?", type=Path, help="a plan saved by plan --out")
     apply.add_argument("-f", "--file", type=Path, help="desired state (default: under --root)")
     apply.add_argument("--yes", action="store_true", help="apply without asking")
-    apply.add_argument("--lock-timeout", type=float, default=10.0, metavar="SECONDS",
-                       help="wait this long for another apply to finish (default 10)")
+    apply.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
     apply.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
                        help="kill an app script running longer than this (default 600)")
     apply.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
@@ -132,14 +140,21 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _debug_log(layout: Layout) -> str:
+    """Append the traceback to lpam's debug log, never through a planted link."""
+    from reconciler.reading import open_append
+
     try:
-        layout.logs.mkdir(parents=True, exist_ok=True)
-        with layout.debug_log.open("a", encoding="utf-8") as out:
-            out.write(f"--- {now().isoformat()} lpam {__version__} {sys.argv}\n")
-            out.write(traceback.format_exc())
-        return str(layout.debug_log)
+        fd = open_append(layout.debug_log)
+    except (OSError, LpamError):
+        return "(the debug log could not be written)"
+    try:
+        text = f"--- {now().isoformat()} lpam {__version__} {sys.argv}\n" + traceback.format_exc()
+        os.write(fd, text.encode("utf-8", "replace"))
     except OSError:
         return "(the debug log could not be written)"
+    finally:
+        os.close(fd)
+    return str(layout.debug_log)
 
 
 def _desired_path(args: argparse.Namespace, layout: Layout) -> Path:
@@ -147,35 +162,68 @@ def _desired_path(args: argparse.Namespace, layout: Layout) -> Path:
 
 
 def _prepare(
-    layout: Layout, path: Path, desired: DesiredState, *, fetch: bool, timeout: float
+    layout: Layout, path: Path, desired: DesiredState, *, fetch: Fetch, timeout: float,
+    busy: str | None = None,
 ) -> tuple[GitStore, Plan]:
-    """Resolve the desired state, observe the machine and plan; `path` anchors relative URLs."""
+    """Resolve the desired state, observe the machine and plan; `path` anchors relative URLs.
+    `busy` is what holds the lock when the caller planned beside a running apply."""
     from reconciler.adapters.git import GitStore
     from reconciler.observe.machine import observe
-    from reconciler.observe.targets import resolve
+    from reconciler.observe.targets import Fetch, resolve
     from reconciler.planning.plan import make_plan
 
     store = GitStore(layout, timeout=timeout)
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch)
     observed = observe(layout, store, targets)
-    if observed.interrupted:
+    if busy is not None:
+        print(f"note: an apply is in progress ({busy}); this plan shows the machine as it "
+              "stands now, part-way through it", file=sys.stderr)
+    elif observed.interrupted:
         print(f"note: the last apply was interrupted during {', '.join(observed.interrupted)}; "
               "the next apply runs that step again", file=sys.stderr)
-    plan = make_plan(targets, observed, now=now(), lpam_version=__version__)
+    plan = make_plan(targets, observed, now=now(), lpam_version=__version__,
+                     offline=fetch is Fetch.OFFLINE)
     return store, plan
 
 
 def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
+    """A plan is exact: it fetches the commits it needs into the store's object database
+    (under the lock, never moving a checkout). Beside a running apply, or with
+    --offline, it plans from what is local and says so; such a plan cannot be saved."""
     from reconciler.documents import load_desired
-    from reconciler.planning.render import render
+    from reconciler.errors import LockError
+    from reconciler.execution.lock import apply_lock, holder
+    from reconciler.observe.targets import Fetch
 
     path = _desired_path(args, layout)
-    _, plan = _prepare(layout, path, load_desired(path), fetch=args.out is not None,
-                       timeout=args.network_timeout)
-    if args.out is not None:
-        from reconciler.atomic import write_atomic
+    desired = load_desired(path)
+    if args.offline and args.out is not None:
+        raise LpamError("an --offline plan cannot be saved: it may hold values known only "
+                        "after a fetch", hint="drop --offline to save an exact plan")
+    if args.offline:
+        _, plan = _prepare(layout, path, desired, fetch=Fetch.OFFLINE,
+                           timeout=args.network_timeout, busy=holder(layout))
+        return _show_plan(args, plan)
+    try:
+        with apply_lock(layout, timeout=args.lock_timeout):
+            _, plan = _prepare(layout, path, desired, fetch=Fetch.OBJECTS,
+                               timeout=args.network_timeout)
+            if args.out is not None:
+                from reconciler.atomic import write_atomic
 
-        write_atomic(args.out, plan.model_dump_json(indent=2) + "\n")
+                write_atomic(args.out, plan.model_dump_json(indent=2) + "\n")
+    except LockError:
+        busy = holder(layout)
+        if args.out is not None or busy is None:
+            raise
+        _, plan = _prepare(layout, path, desired, fetch=Fetch.OFFLINE,
+                           timeout=args.network_timeout, busy=busy)
+    return _show_plan(args, plan)
+
+
+def _show_plan(args: argparse.Namespace, plan: Plan) -> int:
+    from reconciler.planning.render import render
+
     if args.json:
         print(plan.model_dump_json(indent=2))
     else:
@@ -217,9 +265,11 @@ def _apply_saved(args: argparse.Namespace, layout: Layout, plan: Plan, lock: Loc
 def _apply_desired(
     args: argparse.Namespace, layout: Layout, path: Path, desired: DesiredState, lock: Lock
 ) -> int:
+    from reconciler.observe.targets import Fetch
     from reconciler.planning.render import render
 
-    store, plan = _prepare(layout, path, desired, fetch=True, timeout=args.network_timeout)
+    store, plan = _prepare(layout, path, desired, fetch=Fetch.CHECKOUT,
+                           timeout=args.network_timeout)
     print(render(plan))
     if not plan.steps:
         return EXIT_OK

@@ -84,6 +84,10 @@ class Plan(BaseModel):
     changes: list[Change]
     steps: list[Step]
     summary: str = ""
+    offline: bool = Field(
+        default=False,
+        description="made without network: branches as of the last fetch; never applied",
+    )
     fingerprint: str = ""
 
     @property

@@ -135,6 +135,23 @@ class GitStore:
             return None
         return found[1].decode("ascii")
 
+    def local_refs(self, key: str) -> RemoteRefs | None:
+        """What the last fetch saw of origin's branches and tags (peeled), without network:
+        the answer `plan --offline` gives instead of an ls-remote. None without a checkout."""
+        with self._open(key) as repo:
+            if repo is None:
+                return None
+            refs: dict[str, str] = {}
+            for name, sha in repo.refs.as_dict(Ref(b"refs/remotes/origin")).items():
+                refs["refs/heads/" + name.decode("utf-8")] = sha.decode("ascii")
+            for name in repo.refs.as_dict(Ref(b"refs/tags")):
+                with contextlib.suppress(KeyError):
+                    peeled = repo.get_peeled(Ref(b"refs/tags/" + name))
+                    refs["refs/tags/" + name.decode("utf-8")] = peeled.decode("ascii")
+            url = self.origin_url(key) or ""
+        default = next((b for b in ("main", "master") if "refs/heads/" + b in refs), None)
+        return RemoteRefs(url=url, refs=refs, default_branch=default)
+
     # -- network, read-only -------------------------------------------------------------
 
     def ls_remote(self, url: str) -> RemoteRefs:
@@ -169,6 +186,18 @@ class GitStore:
             raise
         fsync_dir(dest.parent)
         self._sweep(key)
+
+    def fetch_objects(self, key: str, url: str) -> None:
+        """Bring `url`'s commits into the key's object database for a plan to read, moving
+        no checkout: HEAD, index and files stay as they are. A missing checkout is created
+        (a clone with nothing checked out, as `fetch` makes it); one with another origin
+        keeps its origin and refs, the new commits being only added to its objects."""
+        dest = self._checkout_dir(key)
+        if not dest.exists() or self.origin_url(key) == url:
+            self.fetch(key, url)
+            return
+        with Repo(str(dest)) as repo:
+            self._transport.fetch_into(repo, url, mirror=False)
 
     def checkout(self, key: str, commit: str) -> None:
         """Detach HEAD at `commit` and make the index and working tree match it."""

@@ -102,11 +102,13 @@ class Transport:
             default = next((b for b in ("main", "master") if _HEADS + b in refs), None)
         return RemoteRefs(url=url, refs=refs, default_branch=default)
 
-    def fetch_into(self, repo: Repo, url: str) -> None:
+    def fetch_into(self, repo: Repo, url: str, *, mirror: bool = True) -> None:
         """Fetch every branch and tag, then mirror them as origin's refs and local tags.
 
         The refs are written only after the pack is safely stored, so a failed fetch
-        changes nothing; `porcelain.fetch(repo, URL)` would not write them at all.
+        changes nothing; `porcelain.fetch(repo, URL)` would not write them at all. With
+        `mirror=False` (a URL that is not the checkout's origin) the origin's refs stay,
+        and the fetched tips are kept under `refs/lpam/fetched/` so no cleanup drops them.
         """
         client, path = self._client(url)
 
@@ -117,6 +119,10 @@ class Transport:
         with self._network(url, "fetch"):
             result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)
         heads, tags = _under(result.refs, b"refs/heads/"), _under(result.refs, b"refs/tags/")
+        if not mirror:
+            repo.refs.import_refs(Ref(b"refs/lpam/fetched/heads"), heads, prune=True)
+            repo.refs.import_refs(Ref(b"refs/lpam/fetched/tags"), tags, prune=True)
+            return
         repo.refs.import_refs(Ref(b"refs/remotes/origin"), heads, prune=True)
         repo.refs.import_refs(Ref(b"refs/tags"), tags)
 

@@ -3,23 +3,30 @@ where the desired app comes from.
 
 This is the only probe that may use the network, and only when it must: a ref that is a
 commit hash already in the store is resolved locally (a pinned no-op plan opens no
-connection); a branch or tag is looked up with one ls-remote. With `fetch=True` (apply,
-`plan --out`), commits not yet in the store are fetched first, so the plan is exact and
-all network work is done before anything on the machine changes.
+connection); a branch or tag is looked up with one ls-remote. Commits not yet in the store
+are then fetched, so that the plan reads the catalog and app folder it will install and is
+exact — how depends on the `Fetch` mode:
+
+- `CHECKOUT` (apply): `store.fetch`, which may re-clone a repository whose URL changed;
+- `OBJECTS` (plan): `store.fetch_objects`, which adds commits to the object database and
+  never moves a checkout, so a plan changes nothing anyone could see;
+- `OFFLINE` (`plan --offline`): no network at all; branches and tags resolve to what the
+  last fetch saw, and what is not local stays "known after fetch".
 """
 
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from enum import Enum
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.documents import parse_catalog
 from reconciler.errors import CatalogError, RefNotFoundError
-from reconciler.planning.model import AppTarget, RepoTarget, Targets, short
+from reconciler.planning.model import UNKNOWN, AppTarget, RepoTarget, Targets, short
 from schemas.catalog import CATALOG_FILE, Catalog
 from schemas.desired import DesiredState, RepositorySpec
-from schemas.names import is_hex_commit
+from schemas.names import is_hex_commit, redact
 
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
@@ -27,10 +34,18 @@ if TYPE_CHECKING:
 FETCH_WORKERS = 4
 
 
-def resolve(desired: DesiredState, *, base_dir: Path, store: GitStore, fetch: bool) -> Targets:
+class Fetch(Enum):
+    """How far resolving may go to make the plan exact (see the module docstring)."""
+
+    CHECKOUT = "checkout"
+    OBJECTS = "objects"
+    OFFLINE = "offline"
+
+
+def resolve(desired: DesiredState, *, base_dir: Path, store: GitStore, fetch: Fetch) -> Targets:
     """Desired state → Targets; raises before any change if a ref does not exist."""
     specs = desired.repositories
-    if len(specs) > 1:
+    if len(specs) > 1 and fetch is not Fetch.OFFLINE:
         with ThreadPoolExecutor(max_workers=min(FETCH_WORKERS, len(specs))) as pool:
             repos = list(pool.map(lambda s: _resolve_repo(s, base_dir, store, fetch), specs))
     else:
@@ -39,23 +54,36 @@ def resolve(desired: DesiredState, *, base_dir: Path, store: GitStore, fetch: bo
     return Targets(repositories=tuple(repos), app=app)
 
 
-def _resolve_repo(spec: RepositorySpec, base_dir: Path, store: GitStore, fetch: bool) -> RepoTarget:
+def _bring(store: GitStore, key: str, url: str, fetch: Fetch) -> None:
+    if fetch is Fetch.CHECKOUT:
+        store.fetch(key, url)
+    elif fetch is Fetch.OBJECTS:
+        store.fetch_objects(key, url)
+
+
+def _resolve_repo(
+    spec: RepositorySpec, base_dir: Path, store: GitStore, fetch: Fetch
+) -> RepoTarget:
     url, key, ref = spec.source(base_dir), spec.key, spec.ref
     same_origin = store.origin_url(key) == url
     commit: str | None = None
     if ref is not None and is_hex_commit(ref):
-        if same_origin:
-            commit = store.resolve_local(key, ref)
-        if commit is None and fetch:
-            store.fetch(key, url)
+        # A commit hash names the same content whichever remote brought it.
+        commit = store.resolve_local(key, ref)
+        if commit is None and fetch is not Fetch.OFFLINE:
+            _bring(store, key, url, fetch)
             commit = store.resolve_local(key, ref)
             if commit is None:
                 raise RefNotFoundError(
-                    f"commit {ref} not found in {url}",
+                    f"commit {ref} not found in {redact(url)}",
                     hint="check the hash (is it pushed?); nothing on the machine was changed",
                 )
         elif commit is None and len(ref) == 40:
             commit = ref
+    elif fetch is Fetch.OFFLINE:
+        local = store.local_refs(key) if same_origin else None
+        commit = local.resolve(ref) if local is not None else None
+        return RepoTarget(key=key, url=url, ref=ref, commit=commit, as_of_last_fetch=True)
     else:
         remote = store.ls_remote(url)
         commit = remote.resolve(ref)
@@ -66,20 +94,22 @@ def _resolve_repo(spec: RepositorySpec, base_dir: Path, store: GitStore, fetch: 
                           if r.startswith("refs/tags/"))
             what = f"ref {ref!r}" if ref else "a default branch"
             raise RefNotFoundError(
-                f"{what} not found in {url} (branches: {', '.join(heads) or 'none'}; "
+                f"{what} not found in {redact(url)} (branches: {', '.join(heads) or 'none'}; "
                 f"tags: {', '.join(tags) or 'none'})",
                 hint="fix `ref:` in the desired state; nothing on the machine was changed",
             )
-        if fetch and not (same_origin and store.has_commit(key, commit)):
+        if fetch is Fetch.CHECKOUT and not (same_origin and store.has_commit(key, commit)):
             store.fetch(key, url)
+        elif fetch is Fetch.OBJECTS and not store.has_commit(key, commit):
+            store.fetch_objects(key, url)
     return RepoTarget(key=key, url=url, ref=ref, commit=commit)
 
 
 def _catalog(store: GitStore, repo: RepoTarget) -> Catalog | None:
-    """The repository's app catalog at its target commit; None when not fetched yet."""
-    if repo.commit is None or store.origin_url(repo.key) != repo.url:
-        return None
-    if not store.has_commit(repo.key, repo.commit):
+    """The repository's app catalog at its target commit; None when not fetched yet.
+    A commit's content is the same whichever remote brought it, so the origin of the
+    checkout does not matter here."""
+    if repo.commit is None or not store.has_commit(repo.key, repo.commit):
         return None
     data = store.read_file(repo.key, repo.commit, CATALOG_FILE)
     if data is None:
@@ -131,9 +161,7 @@ def _resolve_app(desired: DesiredState, repos: list[RepoTarget], store: GitStore
         return AppTarget(name=spec.name, repository=repo.key, commit=repo.commit, path=path,
                          tree=tree, params=dict(spec.params))
     if unknown:
-        repo = unknown[0] if len(unknown) == 1 else RepoTarget(
-            "(known after fetch)", "", None, None
-        )
+        repo = unknown[0] if len(unknown) == 1 else RepoTarget(UNKNOWN, "", None, None)
         return AppTarget(name=spec.name, repository=repo.key, commit=repo.commit, path=None,
                          tree=None, params=dict(spec.params))
     raise CatalogError(

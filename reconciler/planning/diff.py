@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from reconciler.planning.lifecycle import keeps
 from reconciler.planning.model import (
+    UNKNOWN,
     AppTarget,
     GenerationKey,
     Observed,
@@ -65,6 +66,8 @@ def _repository(t: RepoTarget, observed: Observed) -> Change:
         "url": t.url, "ref": t.ref, "commit": t.commit,
     }
     ref = _describe_ref(t.ref)
+    if t.as_of_last_fetch:
+        ref += " (offline: as of the last fetch)"
     blocked = "the update will be refused until they are committed elsewhere or removed"
     if rec is None:
         return Change(
@@ -161,6 +164,14 @@ def _app(t: AppTarget | None, rec: AppRecord | None,
         return Change(
             address="app", action=Action.CREATE, after=after,
             reason=f"install {t.name} from {t.repository} at {short(t.commit)}",
+        )
+    if t.name == rec.name and t.tree is None and t.repository == UNKNOWN:
+        # Offline, with several repositories not fetched yet: which one offers the app
+        # is unknown, and claiming a switch "from X to X" would be a guess.
+        return Change(
+            address="app", action=Action.UPDATE, before=before, after=after,
+            reason=f"{t.name}: which repository offers it, and whether its folder changed, "
+            "are known after fetch",
         )
     if (rec.name, rec.repository) != (t.name, t.repository):
         return Change(

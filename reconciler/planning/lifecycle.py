@@ -24,11 +24,9 @@ generation is staged (during preparation), installed and started.
 
 from __future__ import annotations
 
-from reconciler.planning.model import AppTarget, GenerationKey
+from reconciler.planning.model import UNKNOWN, AppTarget, GenerationKey
 from schemas.plan import Phase, Step, StepKind
 from schemas.record import ACTIVE, AppRecord, StateRecord
-
-UNKNOWN = "(known after fetch)"
 
 _SAME_GENERATION: dict[str, tuple[StepKind, ...]] = {
     "running": (),

@@ -15,6 +15,8 @@ from typing import NamedTuple
 from reconciler.layout import slug
 from schemas.record import StateRecord
 
+UNKNOWN = "(known after fetch)"  # a value a plan cannot know without the network
+
 
 class GenerationKey(NamedTuple):
     """A generation folder on disk: (the app's folder name, the generation id).
@@ -33,12 +35,15 @@ class GenerationKey(NamedTuple):
 
 @dataclass(frozen=True)
 class RepoTarget:
-    """A desired repository; `commit` is None only when it is known after a fetch."""
+    """A desired repository; `commit` is None only when it is known after a fetch.
+    `as_of_last_fetch`: the branch or tag was resolved offline, from what the last fetch
+    saw; the remote may have moved since."""
 
     key: str
     url: str
     ref: str | None
     commit: str | None
+    as_of_last_fetch: bool = False
 
 
 @dataclass(frozen=True)
@@ -91,4 +96,4 @@ def generation_id(tree: str, params: dict[str, str]) -> str:
 
 
 def short(commit: str | None) -> str:
-    return commit[:12] if commit else "(known after fetch)"
+    return commit[:12] if commit else UNKNOWN

@@ -14,11 +14,14 @@ from datetime import datetime
 from reconciler.errors import PlanError, StalePlanError
 from reconciler.planning.diff import diff
 from reconciler.planning.graph import steps_for
-from reconciler.planning.model import Observed, Targets
+from reconciler.planning.model import UNKNOWN, Observed, Targets
 from schemas.plan import Action, Plan
 
 
-def make_plan(targets: Targets, observed: Observed, *, now: datetime, lpam_version: str) -> Plan:
+def make_plan(
+    targets: Targets, observed: Observed, *, now: datetime, lpam_version: str,
+    offline: bool = False,
+) -> Plan:
     changes = diff(targets, observed)
     steps = steps_for(changes, targets, observed)
     counts = {a: sum(1 for c in changes if c.action is a) for a in Action}
@@ -36,6 +39,7 @@ def make_plan(targets: Targets, observed: Observed, *, now: datetime, lpam_versi
         changes=changes,
         steps=steps,
         summary=summary,
+        offline=offline,
     )
     return plan.model_copy(update={"fingerprint": fingerprint(plan)})
 
@@ -43,11 +47,25 @@ def make_plan(targets: Targets, observed: Observed, *, now: datetime, lpam_versi
 def fingerprint(plan: Plan) -> str:
     body = {
         "format_version": plan.format_version,
+        "offline": plan.offline,
         "lineage": plan.lineage,
         "serial": plan.serial,
         "steps": [s.model_dump(mode="json") for s in plan.steps],
     }
     return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
+
+
+_REQUIRED_ARGS = ("commit", "generation", "tree", "path", "repository")
+
+
+def _unknown_values(plan: Plan) -> list[str]:
+    """`step.arg` for every value a plan must know to run but does not."""
+    return [
+        f"{step.id}.{name}"
+        for step in plan.steps
+        for name in _REQUIRED_ARGS
+        if name in step.args and (step.args[name] is None or UNKNOWN in str(step.args[name]))
+    ]
 
 
 def check_plan(plan: Plan, *, lineage: str | None, serial: int, source: str) -> None:
@@ -57,8 +75,13 @@ def check_plan(plan: Plan, *, lineage: str | None, serial: int, source: str) -> 
             f"{source}: the plan's fingerprint does not match its steps (edited or corrupt)",
             hint="make a new plan with `lpam plan --out FILE`",
         )
-    if any("(known after fetch)" in str(s.args.get("generation")) for s in plan.steps):
-        raise PlanError(f"{source}: the plan has values still unknown; it cannot be applied")
+    unknown = _unknown_values(plan)
+    if plan.offline or unknown:
+        raise PlanError(
+            f"{source}: the plan was made offline or holds values still unknown "
+            f"({', '.join(unknown) or 'offline'}); it cannot be applied",
+            hint="make an exact plan with `lpam plan --out FILE` (with network)",
+        )
     if plan.lineage is not None and plan.lineage != lineage:
         raise StalePlanError(
             f"{source} was made for another machine state (lineage {plan.lineage}, "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from reconciler.planning.model import UNKNOWN
 from schemas.plan import Action, Plan
 
 _ORDER = ("name", "repository", "url", "ref", "commit", "generation", "params", "status")
@@ -43,5 +44,8 @@ def render(plan: Plan, *, show_noop: bool = False) -> str:
         for number, step in enumerate(plan.steps, 1):
             lines.append(f"  {number:>2}. [{step.phase.value}] {step.id}")
     lines.append("")
+    if plan.offline:
+        lines.append("Offline plan: branches and tags as of the last fetch; values marked "
+                     f"{UNKNOWN!r} need the network. Run `lpam plan` for an exact plan.")
     lines.append(plan.summary)
     return "\n".join(lines).lstrip("\n")

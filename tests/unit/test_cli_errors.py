@@ -31,3 +31,40 @@ def test_root_from_environment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
     (tmp_path / "etc/libpanda.d/app-manifest.csv").write_text("a/b, main\n")
     assert cli.main(["import-lpam"]) == 0
     assert "repo: a/b" in capsys.readouterr().out
+
+
+def test_a_debug_log_planted_as_a_link_is_not_written_through(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def broken(*_: object) -> int:
+        raise RuntimeError("a bug")
+
+    outside = tmp_path / "outside.txt"
+    outside.write_text("precious\n")
+    root = tmp_path / "root"
+    (root / "var/log/lpam").mkdir(parents=True)
+    (root / "var/log/lpam/debug.log").symlink_to(outside)
+    monkeypatch.setitem(cli.COMMANDS, "status", broken)
+    assert cli.main(["--root", str(root), "status"]) == 1
+    assert outside.read_text() == "precious\n"
+    err = capsys.readouterr().err
+    assert "internal error" in err and "could not be written" in err
+
+
+def test_a_lock_file_planted_as_a_link_or_a_directory_is_refused(tmp_path: Path) -> None:
+    from reconciler.errors import LockError
+    from reconciler.execution.lock import apply_lock
+    from reconciler.layout import Layout
+
+    layout = Layout(tmp_path)
+    outside = tmp_path / "outside.txt"
+    outside.write_text("precious\n")
+    layout.lock.parent.mkdir(parents=True)
+    layout.lock.symlink_to(outside)
+    with pytest.raises(LockError, match="symbolic link"), apply_lock(layout, timeout=0):
+        pass
+    assert outside.read_text() == "precious\n"
+    layout.lock.unlink()
+    layout.lock.mkdir()
+    with pytest.raises(LockError, match="directory"), apply_lock(layout, timeout=0):
+        pass
