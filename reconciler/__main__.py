@@ -1,5 +1,22 @@
-"""`python -m reconciler` is the same as the `lpam` console script."""
+"""`python -m reconciler` and the `lpam` console script.
 
-from reconciler.cli import entry
+The CLI is imported inside `main`, so that a Ctrl-C while Python is still importing lpam
+(a slow Pi, a busy machine) ends as an interrupt with exit code 130, not as a traceback.
+"""
 
-raise SystemExit(entry())
+from __future__ import annotations
+
+import sys
+
+
+def main() -> int:
+    try:
+        from reconciler.cli import entry
+    except KeyboardInterrupt:
+        print("interrupted: lpam was still starting; nothing was changed", file=sys.stderr)
+        return 130
+    return entry()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

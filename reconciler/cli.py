@@ -108,6 +108,9 @@ def entry() -> int:
     gc.disable()
     try:
         return main()
+    except KeyboardInterrupt:  # before a command began (parsing arguments): nothing ran
+        print("interrupted: nothing was changed", file=sys.stderr)
+        return 130
     finally:
         gc.freeze()
 

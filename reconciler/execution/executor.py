@@ -27,7 +27,7 @@ from schemas.record import ACTIVE, AppRecord
 
 def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None]) -> None:
     journal = Journal(ctx.layout, apply_id=str(uuid.uuid4()), plan=plan.fingerprint)
-    journal.open(ctx.clock())
+    journal.open(ctx.clock(), warn=progress)
     ctx.save(ctx.record)  # as read: settled, strays adopted — before any exit file is pruned
     previous = ctx.record.app
     total = len(plan.steps)

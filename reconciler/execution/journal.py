@@ -5,18 +5,29 @@ Mender persists its state before each state's work. The journal holds the last a
 only. After a power cut or SIGKILL, a step with "begin" and no end is the interrupted one:
 the next apply reports it and runs it again, while steps that ended are not repeated
 (they are already reflected in the state record). A torn last line is ignored.
+
+The journal is advisory — the state record is what lpam trusts — so a damaged one never
+blocks anything: a reader skips what it cannot parse (bad UTF-8, JSON nested too deep, a
+file too large, a directory or link in its place), and a writer moves whatever is not a
+regular file aside to `journal.jsonl.damaged-<time>` and starts afresh, saying so.
 """
 
 from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from datetime import datetime
+from pathlib import Path
 
 from reconciler.atomic import append_durable, write_atomic
+from reconciler.errors import ConfigError
 from reconciler.layout import Layout
+from reconciler.reading import MIB, read_bounded
 
 VERSION = 1
+LIMIT = 4 * MIB  # one apply's events are a few KiB; more is not a journal lpam wrote
+STEP_LIMIT = 300
 
 
 class Journal:
@@ -25,8 +36,12 @@ class Journal:
         self._apply = apply_id
         self._plan = plan
 
-    def open(self, now: datetime) -> None:
+    def open(self, now: datetime, *, warn: Callable[[str], None] = lambda _: None) -> None:
         """Start a fresh journal for this apply (the previous one was read already)."""
+        moved = _move_aside(self._path, now)
+        if moved is not None:
+            warn(f"note: {self._path} was not a regular file; moved it to {moved} and "
+                 "started a new journal")
         write_atomic(self._path, "")
         self._write("apply-begin", None, now)
 
@@ -48,17 +63,30 @@ class Journal:
         append_durable(self._path, json.dumps(line, sort_keys=True))
 
 
-def read_events(layout: Layout) -> list[dict[str, object]]:
+def _move_aside(path: Path, now: datetime) -> Path | None:
+    """Move a directory, link or other non-file at `path` out of the way; where it went."""
     try:
-        text = layout.journal.read_text(encoding="utf-8")
-    except FileNotFoundError:
+        if path.is_symlink() or (path.exists() and not path.is_file()):
+            aside = path.with_name(f"{path.name}.damaged-{now.strftime('%Y%m%dT%H%M%S')}")
+            os.rename(path, aside)
+            return aside
+    except OSError:
+        pass  # write_atomic then reports what stands in the way
+    return None
+
+
+def read_events(layout: Layout) -> list[dict[str, object]]:
+    """The journal's events; what cannot be read is skipped, never an error."""
+    try:
+        data = read_bounded(layout.journal, limit=LIMIT, follow_symlinks=False, what="journal")
+    except (FileNotFoundError, ConfigError):
         return []
     events = []
-    for raw in text.splitlines():
+    for raw in data.decode("utf-8", "replace").splitlines():
         try:
             event = json.loads(raw)
-        except json.JSONDecodeError:
-            continue  # a line torn by a power cut
+        except (json.JSONDecodeError, RecursionError):
+            continue  # a line torn by a power cut, or not lpam's
         if isinstance(event, dict):
             events.append(event)
     return events
@@ -72,8 +100,8 @@ def interrupted_steps(layout: Layout) -> list[str]:
     open_steps: dict[str, None] = {}
     for event in events:
         step = event.get("step")
-        if not isinstance(step, str):
-            continue
+        if not isinstance(step, str) or len(step) > STEP_LIMIT or not step.isprintable():
+            continue  # not a step id lpam wrote: never echo it
         if event.get("event") == "begin":
             open_steps[step] = None
         else:
