@@ -181,11 +181,15 @@ def _prepare(
     if busy is not None:
         print(f"note: an apply is in progress ({busy}); this plan shows the machine as it "
               "stands now, part-way through it", file=sys.stderr)
-    elif observed.interrupted:
-        print(f"note: the last apply was interrupted during {', '.join(observed.interrupted)}; "
-              "the next apply runs that step again", file=sys.stderr)
     plan = make_plan(targets, observed, now=now(), lpam_version=__version__,
                      offline=fetch is Fetch.OFFLINE)
+    if busy is None and observed.interrupted:
+        cut = ", ".join(observed.interrupted)
+        # The step's script may have finished after lpam died (its guard wrote the exit
+        # code): then the record is settled and nothing is left to run again.
+        rest = ("the steps below finish it" if plan.steps
+                else "its script finished since, so nothing is left to redo")
+        print(f"note: the last apply was interrupted during {cut}; {rest}", file=sys.stderr)
     return store, plan
 
 

@@ -126,6 +126,7 @@ def test_a_script_that_outlives_a_killed_lpam_holds_the_lock_and_is_not_run_twic
     assert (lpam.root / "start-ended").exists()
     plan = lpam("plan", "--detailed-exitcode")
     assert plan.returncode == 0, plan.stdout  # start.sh finished with 0: alpha is running
+    assert "nothing is left to redo" in plan.stderr  # not "runs that step again"
     assert lpam("apply", "--yes").returncode == 0
     assert lpam.events() == ["alpha:install:", "alpha:start:"]
     assert lpam.status()["app"]["running"] is True

@@ -15,6 +15,7 @@ desired app, a script failing once and lpam dying before, during or after any sc
 from __future__ import annotations
 
 import json
+import os
 import tempfile
 from datetime import UTC, datetime
 from pathlib import Path
@@ -40,6 +41,7 @@ TREES = {("x", C1): "1" * 40, ("x", C2): "2" * 40, ("y", C1): "3" * 40, ("y", C2
 SCRIPTS = ("install.sh", "uninstall.sh", "start.sh", "stop.sh")
 STATUSES = ("installing", "installed", "starting", "running", "stopping", "uninstalling")
 NOW = datetime(2026, 11, 22, tzinfo=UTC)
+EXAMPLES = int(os.environ.get("LPAM_PROPERTY_EXAMPLES", "150"))  # more: docs/reliability.md
 
 
 def remote() -> dict[str, dict[str, dict[str, tuple[str, dict[str, str]]]]]:
@@ -140,7 +142,7 @@ def converge(world: World, wish: tuple[str, str, dict[str, str]] | None) -> None
         assert gens == {(wish[0], record.app.generation)} if record.app else gens == set()
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=EXAMPLES, deadline=None)
 @given(machines(), wishes, failures)
 def test_any_machine_converges_and_the_bus_is_never_shared(
     machine: tuple[StateRecord, list[tuple[str, str, dict[str, str]]]],
@@ -152,7 +154,7 @@ def test_any_machine_converges_and_the_bus_is_never_shared(
         converge(world, wish)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=EXAMPLES, deadline=None)
 @given(machines(), wishes, crashes)
 def test_a_crash_anywhere_resumes_without_running_a_finished_script_again(
     machine: tuple[StateRecord, list[tuple[str, str, dict[str, str]]]],
