@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import socket
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -23,10 +22,7 @@ def hermetic_env(
     for name in list(os.environ):
         if name.startswith("GIT_"):
             monkeypatch.delenv(name)
-    # GitStore sets the process-wide socket timeout; no test may inherit another's.
-    previous = socket.getdefaulttimeout()
     yield home
-    socket.setdefaulttimeout(previous)
 
 
 @pytest.fixture

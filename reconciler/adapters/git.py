@@ -12,7 +12,9 @@ commit lpam chose). Work in progress lives in siblings named `.<slug>~clone~*` a
 `.<slug>~old~*` so that a power cut never leaves half a checkout under the key's own
 name; leftovers are swept on the next fetch. A checkout interrupted by a power cut is
 marked by `.git/lpam-checkout` so that its half-written files are not mistaken for a
-user's edits.
+user's edits. A commit whose tree holds a path git must never write (`.git`, `..`, their
+case, NTFS and HFS+ spellings) is refused before anything is written, so that marker never
+names such a commit and the store stays usable until a clean commit arrives.
 
 The network side (what a remote advertises, fetching into a checkout) is
 `adapters.remote.Transport`; this module owns the checkouts and reads their objects.
@@ -23,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-import socket
 import stat
 import tempfile
 from collections.abc import Iterator
@@ -34,6 +35,8 @@ from dulwich.index import (
     InvalidPathError,
     build_file_from_blob,
     validate_path_element_default,
+    validate_path_element_hfs,
+    validate_path_element_ntfs,
     verify_tree_path,
 )
 from dulwich.object_store import iter_tree_contents
@@ -41,11 +44,13 @@ from dulwich.objects import Blob, Commit, ObjectID, SubmoduleEncountered, Tree
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
+from reconciler.adapters.objectsize import object_size
 from reconciler.adapters.remote import RemoteRefs, Transport
 from reconciler.atomic import fsync_dir, write_atomic
 from reconciler.errors import GitError, LocalEditsError, RefNotFoundError
 from reconciler.layout import Layout, slug
-from schemas.names import is_hex_commit
+from reconciler.reading import MIB
+from schemas.names import is_hex_commit, redact
 
 # dulwich.porcelain is imported where it is used, as dulwich.client is in adapters.remote: a
 # no-op plan of pinned repositories reads the store only and should not pay for the network
@@ -54,19 +59,18 @@ from schemas.names import is_hex_commit
 __all__ = ["GitStore", "RemoteRefs"]
 
 _MARKER = "lpam-checkout"
+READ_LIMIT = 4 * MIB
+"""The most `read_file` returns: app catalogs and parameter files are a few KiB, and a
+blob read whole into memory must not be able to exhaust the Pi's."""
 
 
 class GitStore:
     """The checkouts under `layout.repositories`, and the remotes they come from."""
 
     def __init__(self, layout: Layout, *, timeout: float = 60.0) -> None:
+        """`timeout` bounds each network operation's total time (see adapters.remote)."""
         self._layout = layout
         self._transport = Transport(timeout)
-        # dulwich's git:// client has no timeout parameter, so the process default bounds
-        # every wait. It is set here, for the process, not saved and restored per call:
-        # resolve() fetches from several threads, and a per-call restore could race and
-        # leave another thread's connection unbounded. lpam runs one store per process.
-        socket.setdefaulttimeout(timeout)
 
     # -- read-only, no network ---------------------------------------------------------
 
@@ -121,12 +125,28 @@ class GitStore:
                 return []
             return _edits(repo)
 
-    def read_file(self, key: str, commit: str, path: str) -> bytes | None:
+    def read_file(
+        self, key: str, commit: str, path: str, *, limit: int = READ_LIMIT
+    ) -> bytes | None:
+        """The regular file `commit:path` (a symlink is not followed: None), at most `limit`
+        bytes; a larger blob is refused from its header, before it is inflated."""
         with self._open(key) as repo:
             found = None if repo is None else _lookup(repo, commit, path)
             if repo is None or found is None or not stat.S_ISREG(found[0]):
                 return None
-            return repo.object_store[found[1]].as_raw_string()
+            size = object_size(repo.object_store, found[1])
+            data = None
+            if size is None:  # not cheaply known: read it, then judge
+                data = repo.object_store[found[1]].as_raw_string()
+                size = len(data)
+            if size > limit:
+                raise GitError(
+                    f"{key}: '{path}' at commit {commit[:12]} is {size} bytes; lpam reads at "
+                    f"most {limit} bytes of a file in a repository",
+                    hint="the file is too big to be an app catalog or parameter file; "
+                    "check that the right file is committed",
+                )
+            return data if data is not None else repo.object_store[found[1]].as_raw_string()
 
     def folder_tree(self, key: str, commit: str, folder: str) -> str | None:
         with self._open(key) as repo:
@@ -161,6 +181,7 @@ class GitStore:
 
     def fetch(self, key: str, url: str) -> None:
         """Bring `key` up to date with `url`, cloning it when absent or when the URL changed."""
+        self._transport.check(url, "fetch")
         dest = self._checkout_dir(key)
         self._sweep(key)
         current = self.origin_url(key) if dest.exists() else None
@@ -169,7 +190,7 @@ class GitStore:
                 self._transport.fetch_into(repo, url)
             return
         if dest.exists():
-            self._refuse_edits(key, "cannot switch it to " + url)
+            self._refuse_edits(key, "cannot switch it to " + redact(url))
         fresh = self._temp(key, "clone")
         try:
             with Repo.init(str(fresh)) as repo:
@@ -202,18 +223,31 @@ class GitStore:
     def checkout(self, key: str, commit: str) -> None:
         """Detach HEAD at `commit` and make the index and working tree match it."""
         with self._open(key) as repo:
-            if repo is None or _commit(repo, commit) is None:
+            found = None if repo is None else _commit(repo, commit)
+            if repo is None or found is None:
                 raise RefNotFoundError(
                     f"{key}: commit {commit} is not in the repository store",
                     hint="fetch the repository first, or check the commit hash",
+                )
+            unsafe = _unsafe_path(repo, found)
+            if unsafe is not None:
+                raise GitError(
+                    f"{key}: commit {commit} has an unsafe path '{unsafe}'; "
+                    "lpam will not check it out",
+                    hint="the repository tries to write into git's own files or outside its "
+                    "folder; push a commit without that path (lpam converges to it), or pin "
+                    "another commit",
                 )
             marker = _marker(repo)
             if marker.exists():
                 # A power cut stopped a checkout half-way, and HEAD (moved last) still names
                 # where it started: switching to the recorded target rewrites exactly the
-                # paths it was rewriting. Only then are remaining differences a user's.
-                pending = marker.read_text().strip()
-                if _commit(repo, pending) is not None:
+                # paths it was rewriting. Only then are remaining differences a user's. A
+                # marker naming a commit that is gone or unsafe (written by an older lpam)
+                # cannot be replayed; replaying it would block every later checkout.
+                pending = marker.read_text(errors="replace").strip()
+                target = _commit(repo, pending)
+                if target is not None and _unsafe_path(repo, target) is None:
                     _checkout(repo, pending)
                 marker.unlink()
             self._refuse_edits(key, f"cannot check out {commit[:12]}", repo=repo)
@@ -349,7 +383,53 @@ def _lookup(repo: Repo, commit: str, path: str) -> tuple[int, ObjectID] | None:
 def _checkout(repo: Repo, commit: str) -> None:
     from dulwich import porcelain
 
-    porcelain.checkout(repo, commit, force=True)
+    try:
+        porcelain.checkout(repo, commit, force=True)
+    except InvalidPathError as exc:  # the tree was checked: a symlink planted in the checkout
+        raise GitError(
+            f"cannot check out {commit[:12]} in {repo.path}: {exc}",
+            hint=f"delete {repo.path} (lpam will fetch it again)",
+        ) from exc
+
+
+def _safe_name(name: bytes) -> bool:
+    """Whether git may write a tree entry called `name`, judged by every file system's rules
+    git protects (a repository made elsewhere may aim at any of them): not `.git`, `.`,
+    `..` or empty in any case, NTFS spelling (`git~1`, `.git.`, `.git::$INDEX_ALLOCATION`)
+    or HFS+ spelling (with ignorable Unicode). A name that is not UTF-8 cannot be an HFS+
+    spelling, and is an ordinary file name on the Pi's file system."""
+    if b"/" in name or not validate_path_element_ntfs(name):
+        return False
+    try:
+        name.decode("utf-8")
+    except UnicodeDecodeError:
+        return validate_path_element_default(name)
+    return validate_path_element_hfs(name)
+
+
+def _unsafe_path(repo: Repo, commit: Commit) -> str | None:
+    """The first path of `commit`'s tree that must not be written to a working tree, shown
+    printable; None when every path is safe. Walks trees only, never reading a blob."""
+    todo: list[tuple[bytes, ObjectID]] = [(b"", commit.tree)]
+    while todo:
+        prefix, tree_id = todo.pop()
+        tree = repo.object_store[tree_id]
+        if not isinstance(tree, Tree):
+            return _printable(prefix.rstrip(b"/")) or "."
+        for entry in tree.iteritems():
+            assert entry.path is not None and entry.mode is not None and entry.sha is not None
+            path = prefix + entry.path
+            if not _safe_name(entry.path):
+                return _printable(path)
+            if stat.S_ISDIR(entry.mode):
+                todo.append((path + b"/", entry.sha))
+    return None
+
+
+def _printable(path: bytes) -> str:
+    """`path` for a one-line message: control characters escaped, never interpreted."""
+    text = path.decode("utf-8", "replace")
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
 
 
 def _edits(repo: Repo) -> list[str]:

@@ -4,47 +4,39 @@ Place in the flow: `GitStore` (`adapters.git`) owns one `Transport` and delegate
 network step to it. `plan` may ask `ls_remote` what a branch or tag points to, returned
 as a `RemoteRefs`; `apply`'s prepare phase fetches through `fetch_into` (the only network
 step, done before the running app is touched). Transport failures of every kind become
-one-line `GitError`s here. Nothing is written on disk but the fetched pack and the
-mirrored refs of the checkout `GitStore` hands in.
+one-line `GitError`s here, with any credentials in the URL hidden.
+
+`--network-timeout` is a deadline on each operation's total time: the dulwich work runs in
+a child process (`adapters.wire`) that is killed with its whole process group when the
+deadline passes (`adapters.deadline`); no per-socket timeout can bound a server that drips
+one byte at a time, HTTP retries, or the ssh binary. A fetch's child only adds a pack to
+the object store; the refs are written here, after the child succeeded and the objects they
+name are found, so an interrupted fetch changes nothing lpam reads.
 """
 
 from __future__ import annotations
 
-import contextlib
+import json
 import os
-from collections.abc import Iterator, Mapping
+import stat
+import sys
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any
 from urllib.parse import urlparse
 
-from dulwich.errors import GitProtocolError, NotGitRepository
-from dulwich.object_store import peel_sha
 from dulwich.objects import ObjectID
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
 from reconciler.errors import GitError
-from schemas.names import is_hex_commit
-
-if TYPE_CHECKING:
-    from dulwich.client import GitClient
-
-# dulwich.client is imported where it is used (as dulwich.porcelain is in adapters.git): a
-# no-op plan of pinned repositories reads the store only and should not pay for the network
-# stack.
+from schemas.names import is_hex_commit, redact
 
 _HEADS = "refs/heads/"
 _TAGS = "refs/tags/"
 _PEELED = "^{}"
 _SCHEMES = ("git", "http", "https", "ssh", "file")
 _NETWORK_HINT = "check the URL and the network; nothing on the machine was changed"
-
-
-def _transport_errors() -> tuple[type[Exception], ...]:
-    from dulwich.client import HTTPProxyUnauthorized, HTTPUnauthorized, StrangeHostname
-
-    return (OSError, GitProtocolError, NotGitRepository, HTTPUnauthorized,
-            HTTPProxyUnauthorized, StrangeHostname)
+_CHILD = [sys.executable, "-m", "reconciler.adapters.wire"]
 
 
 @dataclass(frozen=True)
@@ -72,30 +64,28 @@ class RemoteRefs:
 
 
 class Transport:
-    """dulwich's clients for the remotes, every wait bounded by `timeout` seconds."""
+    """Network operations on remotes, each bounded in total by `timeout` seconds."""
 
     def __init__(self, timeout: float) -> None:
         self._timeout = timeout
 
-    def ls_remote(self, url: str) -> RemoteRefs:
-        client, path = self._client(url)
-        with self._network(url, "list the branches and tags of"):
-            result = client.get_refs(path.encode("utf-8"))
-            advertised = {
-                name.decode("utf-8"): sha.decode("ascii")
-                for name, sha in result.refs.items()
-                if sha is not None
-            }
-            from dulwich.client import LocalGitClient
+    def check(self, url: str, action: str) -> None:
+        """Refuse, before anything is read or written, a URL dulwich would misparse or crash
+        on, and a local path that is not a directory (a FIFO or /dev/zero would be read
+        forever); `action` completes "cannot … URL" in the message."""
+        _check_url(url, action)
 
-            if isinstance(client, LocalGitClient):  # local repositories do not send peeled tags
-                advertised.update(_peel_local(path, advertised))
+    def ls_remote(self, url: str) -> RemoteRefs:
+        action = "list the branches and tags of"
+        self.check(url, action)
+        answer = self._ask({"op": "ls-remote", "url": url}, url, action)
+        advertised: dict[str, str] = answer["refs"]
         refs = {
             name: advertised.get(name + _PEELED, sha)
             for name, sha in advertised.items()
             if name.startswith((_HEADS, _TAGS)) and not name.endswith(_PEELED)
         }
-        head = result.symrefs.get(Ref(b"HEAD"), b"").decode("utf-8")
+        head = answer["head"] or ""
         if head.startswith(_HEADS) and head in refs:
             default: str | None = head[len(_HEADS) :]
         else:
@@ -110,15 +100,17 @@ class Transport:
         `mirror=False` (a URL that is not the checkout's origin) the origin's refs stay,
         and the fetched tips are kept under `refs/lpam/fetched/` so no cleanup drops them.
         """
-        client, path = self._client(url)
-
-        def wanted(refs: Mapping[Ref, ObjectID], depth: int | None = None) -> list[ObjectID]:
-            tips = [*_under(refs, b"refs/heads/").values(), *_under(refs, b"refs/tags/").values()]
-            return [sha for sha in dict.fromkeys(tips) if sha and sha not in repo.object_store]
-
-        with self._network(url, "fetch"):
-            result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)
-        heads, tags = _under(result.refs, b"refs/heads/"), _under(result.refs, b"refs/tags/")
+        self.check(url, "fetch")
+        answer = self._ask({"op": "fetch", "url": url, "repo": repo.path}, url, "fetch")
+        refs: dict[str, str] = answer["refs"]
+        fetched = {name.encode("utf-8"): sha.encode("ascii") for name, sha in refs.items()}
+        missing = [sha for sha in fetched.values() if ObjectID(sha) not in repo.object_store]
+        if missing:  # refs to absent objects would make the store unreadable
+            raise GitError(
+                redact(f"cannot fetch {url}: the server did not send {missing[0].decode()}"),
+                hint=_NETWORK_HINT,
+            )
+        heads, tags = _under(fetched, b"refs/heads/"), _under(fetched, b"refs/tags/")
         if not mirror:
             repo.refs.import_refs(Ref(b"refs/lpam/fetched/heads"), heads, prune=True)
             repo.refs.import_refs(Ref(b"refs/lpam/fetched/tags"), tags, prune=True)
@@ -126,63 +118,64 @@ class Transport:
         repo.refs.import_refs(Ref(b"refs/remotes/origin"), heads, prune=True)
         repo.refs.import_refs(Ref(b"refs/tags"), tags)
 
-    def _client(self, url: str) -> tuple[GitClient, str]:
-        """A dulwich client for `url`, refusing what it would misparse or crash on."""
-        parsed = urlparse(url)
-        if "://" in url:
-            if parsed.scheme not in _SCHEMES or (parsed.scheme != "file" and not parsed.hostname):
-                raise GitError(f"'{url}' is not a git URL lpam can use", hint=_NETWORK_HINT)
-        elif not os.path.isabs(url):
-            raise GitError(
-                f"'{url}' is neither a URL nor an absolute path",
-                hint="use an https://, git://, ssh:// or file:// URL, or an absolute path",
-            )
-        pool = None
-        if parsed.scheme in ("http", "https"):  # urllib3 takes the timeout the git:// path lacks
-            import urllib3
-            from dulwich.client import default_urllib3_manager
+    def _ask(self, request: dict[str, str], url: str, action: str) -> dict[str, Any]:
+        """Run one operation in a child process; its answer, or a one-line GitError."""
+        from reconciler.adapters import deadline
 
-            manager = default_urllib3_manager(None, timeout=self._timeout)
-            pool = manager if isinstance(manager, urllib3.PoolManager) else None
-        with self._network(url, "connect to"):
-            from dulwich.client import get_transport_and_path
+        def failed(reason: str) -> GitError:
+            return GitError(redact(f"cannot {action} {url}: {reason}"), hint=_NETWORK_HINT)
 
-            return get_transport_and_path(url, pool_manager=pool)
-
-    @contextlib.contextmanager
-    def _network(self, url: str, action: str) -> Iterator[None]:
-        """Turn transport failures into one-line GitErrors (the bound on every wait is the
-        socket default timeout set in GitStore.__init__)."""
+        line = json.dumps(request).encode("utf-8") + b"\n"
         try:
-            yield
-        except _transport_errors() as exc:
-            from dulwich.client import StrangeHostname
+            done = deadline.run(_CHILD, line, timeout=self._timeout)
+        except deadline.Expired:
+            raise failed(f"no answer within {self._timeout:g} s") from None
+        except OSError as exc:
+            raise failed(f"cannot start the git client: {exc.strerror}") from None
+        try:
+            answer = json.loads(done.stdout)
+        except ValueError:
+            answer = None
+        if not isinstance(answer, dict):
+            said = done.stderr.decode("utf-8", "replace").strip().splitlines()
+            raise failed("the git client failed: "
+                         + (said[-1] if said else f"exit status {done.returncode}"))
+        if "error" in answer:
+            raise failed(str(answer["error"]))
+        return answer
 
-            if isinstance(exc, TimeoutError) or isinstance(exc.__cause__, TimeoutError):
-                reason = f"no answer within {self._timeout:g} s"  # dulwich wraps it in its own
-            elif isinstance(exc, StrangeHostname):
-                reason = "the host name looks like a command-line option"
-            else:
-                reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            raise GitError(f"cannot {action} {url}: {reason}", hint=_NETWORK_HINT) from exc
+
+def _check_url(url: str, action: str) -> None:
+    parsed = urlparse(url)
+    if "://" in url:
+        if parsed.scheme not in _SCHEMES or (parsed.scheme != "file" and not parsed.hostname):
+            raise GitError(redact(f"'{url}' is not a git URL lpam can use"), hint=_NETWORK_HINT)
+        if parsed.scheme != "file":
+            return
+        path = parsed.path
+    elif not os.path.isabs(url):
+        raise GitError(
+            redact(f"'{url}' is neither a URL nor an absolute path"),
+            hint="use an https://, git://, ssh:// or file:// URL, or an absolute path",
+        )
+    else:
+        path = url
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        message = redact(f"cannot {action} {url}: {exc.strerror}")
+        raise GitError(message, hint=_NETWORK_HINT) from None
+    if not stat.S_ISDIR(mode):
+        raise GitError(
+            redact(f"cannot {action} {url}: it is not a directory, so not a git repository"),
+            hint="a local url: names the directory of a git repository",
+        )
 
 
-def _under(refs: Mapping[Ref, ObjectID | None], prefix: bytes) -> dict[Ref, ObjectID | None]:
-    """The refs below `prefix`, named relative to it, without peeled `^{}` entries."""
+def _under(refs: dict[bytes, bytes], prefix: bytes) -> dict[Ref, ObjectID | None]:
+    """The refs below `prefix`, named relative to it."""
     return {
-        Ref(name[len(prefix) :]): sha
+        Ref(name[len(prefix) :]): ObjectID(sha)
         for name, sha in refs.items()
-        if sha is not None and name.startswith(prefix) and not name.endswith(b"^{}")
+        if name.startswith(prefix)
     }
-
-
-def _peel_local(path: str, refs: dict[str, str]) -> dict[str, str]:
-    """The `^{}` entries a local repository does not advertise: annotated tags peeled."""
-    peeled = {}
-    with Repo(path) as repo:
-        for name, sha in refs.items():
-            if name.startswith(_TAGS) and not name.endswith(_PEELED):
-                target = peel_sha(repo.object_store, ObjectID(sha.encode("ascii")))[1].id
-                if target.decode("ascii") != sha:
-                    peeled[name + _PEELED] = target.decode("ascii")
-    return peeled

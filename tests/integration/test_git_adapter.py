@@ -12,13 +12,17 @@ import re
 import socket
 import stat
 import subprocess
+import tracemalloc
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from dulwich.objects import Blob
+from dulwich.repo import Repo
 
 from reconciler.adapters.git import GitStore
+from reconciler.adapters.objectsize import object_size
 from reconciler.errors import GitError, LocalEditsError, RefNotFoundError
 from reconciler.layout import Layout
 from tests.gitserver import FIXED_ENV, GitDaemon, RepoBuilder, free_port
@@ -467,3 +471,138 @@ def test_ambiguous_abbreviation_names_the_candidates(served: Served, store: GitS
         store.resolve_local(KEY, shas[0][:4])
     assert shas[0] in caught.value.message and shas[1] in caught.value.message
     assert store.resolve_local(KEY, shas[0][:12]) == shas[0]
+
+
+# -- bounded reads --------------------------------------------------------------------------
+
+
+def test_the_store_leaves_the_process_socket_timeout_alone(layout: Layout) -> None:
+    before = socket.getdefaulttimeout()
+    GitStore(layout, timeout=0.5)
+    assert socket.getdefaulttimeout() == before  # library code does not change the process
+
+
+def test_read_file_refuses_a_blob_larger_than_its_limit(served: Served, store: GitStore) -> None:
+    big = "0123456789abcdef" * 4096  # 64 KiB
+    served.repo.commit("big", {"big.txt": big})
+    c6 = served.repo.commit("bigger", {"big.txt": big + "one more line\n"})  # a delta in the pack
+    served.repo.push()
+    store.fetch(KEY, served.url)
+
+    content = (big + "one more line\n").encode()
+    assert store.read_file(KEY, c6, "big.txt", limit=len(content)) == content
+    with pytest.raises(GitError, match=r"'big.txt' at commit \w{12} is 65550 bytes") as caught:
+        store.read_file(KEY, c6, "big.txt", limit=len(big))
+    assert caught.value.hint
+    assert store.read_file(KEY, served.c4, "README", limit=6) == b"three\n"
+
+
+def test_read_file_does_not_inflate_a_huge_blob(served: Served, store: GitStore) -> None:
+    huge = served.repo.commit("zeros", {"zeros.bin": "\0" * (16 * 1024 * 1024)})
+    served.repo.push()
+    store.fetch(KEY, served.url)
+
+    tracemalloc.start()
+    try:
+        with pytest.raises(GitError, match="16777216 bytes"):
+            store.read_file(KEY, huge, "zeros.bin")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 4 * 1024 * 1024
+
+
+def test_object_size_reads_every_kind_of_object_header(
+    served: Served, store: GitStore, layout: Layout
+) -> None:
+    text = "".join(f"line {i}\n" for i in range(3000))
+    served.repo.commit("text", {"text.txt": text})
+    served.repo.commit("text edited", {"text.txt": text.replace("line 7\n", "line seven\n")})
+    served.repo.push()
+    store.fetch(KEY, served.url)
+    checkout = layout.repository_dir(KEY)
+    with Repo(str(checkout)) as repo:
+        loose = Blob.from_string(b"loose\n" * 1000)
+        repo.object_store.add_object(loose)  # written as a loose object
+        shas = [*repo.object_store, loose.id]
+        sizes = {sha: len(repo.object_store[sha].as_raw_string()) for sha in shas}
+        assert {sha: object_size(repo.object_store, sha) for sha in shas} == sizes
+    (index,) = (checkout / ".git/objects/pack").glob("*.idx")
+    deltas = [line for line in git_out(checkout, "verify-pack", "-v", str(index)).splitlines()
+              if re.match(r"[0-9a-f]{40} \w+ +\d+ \d+ \d+ \d+ [0-9a-f]{40}", line)]
+    assert deltas, "the pack should hold deltas for the test to cover them"
+
+
+def test_a_local_url_that_is_not_a_directory_is_refused_before_reading(
+    store: GitStore, layout: Layout, tmp_path: Path
+) -> None:
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    for url in ("/dev/zero", str(fifo)):
+        with pytest.raises(GitError, match="not a directory"):
+            store.fetch(KEY, url)
+    assert_store_untouched(layout)
+
+
+# -- fetch_objects: commits for the plan, checkouts untouched --------------------------------
+
+
+def snapshot(checkout: Path) -> tuple[str, bytes, dict[str, bytes]]:
+    """HEAD, the index file and every working-tree file: what fetch_objects must not move."""
+    files = {str(p.relative_to(checkout)): p.read_bytes() for p in checkout.rglob("*")
+             if p.is_file() and not p.is_symlink() and ".git" not in p.relative_to(checkout).parts}
+    return (checkout / ".git/HEAD").read_text(), (checkout / ".git/index").read_bytes(), files
+
+
+def test_fetch_objects_without_a_checkout_clones_without_checking_out(
+    served: Served, store: GitStore, layout: Layout
+) -> None:
+    store.fetch_objects(KEY, served.url)
+
+    assert store.head(KEY) is None
+    assert store.origin_url(KEY) == served.url
+    assert all(store.has_commit(KEY, c) for c in (served.c1, served.c2, served.c3, served.c4))
+    assert os.listdir(layout.repository_dir(KEY)) == [".git"]
+    assert not (layout.repository_dir(KEY) / ".git/index").exists()
+
+
+def test_fetch_objects_from_the_origin_moves_refs_not_the_checkout(
+    served: Served, store: GitStore, layout: Layout
+) -> None:
+    store.fetch(KEY, served.url)
+    store.checkout(KEY, served.c2)
+    checkout = layout.repository_dir(KEY)
+    before = snapshot(checkout)
+    c5 = served.repo.commit("fifth", {"README": "five\n"})
+    served.repo.push()
+
+    store.fetch_objects(KEY, served.url)
+
+    assert store.has_commit(KEY, c5)
+    assert git_out(checkout, "rev-parse", "origin/main") == c5
+    assert snapshot(checkout) == before
+    assert store.head(KEY) == served.c2
+
+
+def test_fetch_objects_from_another_url_keeps_origin_and_its_refs(
+    served: Served, store: GitStore, layout: Layout, make_repo: Callable[[str], RepoBuilder]
+) -> None:
+    store.fetch(KEY, served.url)
+    store.checkout(KEY, served.c4)
+    checkout = layout.repository_dir(KEY)
+    before = snapshot(checkout)
+    origin_refs = git_out(checkout, "for-each-ref", "refs/remotes", "refs/tags")
+    fork = make_repo("fork/apps.git")
+    forked = fork.commit("fork", {"README": "fork\n"})
+    fork.tag("fork-v1")
+    fork.push()
+
+    store.fetch_objects(KEY, fork.bare.as_uri())
+
+    assert store.has_commit(KEY, forked)
+    assert store.origin_url(KEY) == served.url
+    assert git_out(checkout, "for-each-ref", "refs/remotes", "refs/tags") == origin_refs
+    assert git_out(checkout, "rev-parse", "refs/lpam/fetched/heads/main") == forked
+    assert git_out(checkout, "rev-parse", "refs/lpam/fetched/tags/fork-v1") == forked
+    assert snapshot(checkout) == before
+    assert store.head(KEY) == served.c4

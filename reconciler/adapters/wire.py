@@ -1,0 +1,180 @@
+"""The network conversation with a remote, run in a child process that can be killed.
+
+Place in the flow: `adapters.remote.Transport` starts `python -m reconciler.adapters.wire`
+for every `ls_remote` and fetch, and kills the child's whole process group when the
+`--network-timeout` deadline passes or lpam is interrupted. dulwich has no total-time bound
+(its git:// client has no timeout at all, HTTP retries multiply the per-socket one, `ssh`
+waits as long as the ssh binary does, and a server dripping one byte at a time never trips
+a per-read timeout), so killing a process is the only bound that holds on every transport.
+
+Protocol, owned by this module: the parent writes one JSON request line on stdin and keeps
+stdin open; the child answers with one JSON document on stdout, either `{"refs": {...},
+"head": ...}` or `{"error": "one line"}`. A child whose stdin reaches end of file has lost
+its parent (lpam was killed) and kills its own group, so no ssh or fetch outlives lpam.
+
+A fetch only adds a pack to the repository's object store (dulwich writes it to a temporary
+file and renames it into place when complete); the parent writes refs after the child has
+succeeded, so a child killed half-way changes nothing that lpam reads.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import threading
+import traceback
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+from urllib.parse import urlparse
+
+from dulwich.errors import GitProtocolError, NotGitRepository
+from dulwich.object_store import peel_sha
+from dulwich.objects import ObjectID
+from dulwich.refs import Ref
+from dulwich.repo import Repo
+
+if TYPE_CHECKING:
+    from dulwich.client import GitClient
+
+_WANTED = (b"refs/heads/", b"refs/tags/")
+_PEELED = b"^{}"
+
+
+def client_for(url: str) -> tuple[GitClient, str]:
+    """A dulwich client for a URL or absolute path that `Transport` has already checked.
+
+    Local repositories get `LocalGitClient` directly: `get_transport_and_path` would send
+    a path containing ':' to the ssh binary and open a plain file to sniff for a bundle.
+    """
+    from dulwich.client import LocalGitClient, get_transport_and_path
+
+    parsed = urlparse(url)
+    if "://" not in url:
+        return LocalGitClient(), url
+    if parsed.scheme == "file":
+        return LocalGitClient(), parsed.path
+    return get_transport_and_path(url)
+
+
+def ls_remote(url: str) -> dict[str, Any]:
+    """Every branch and tag the remote advertises, with `^{}` entries for annotated tags."""
+    from dulwich.client import LocalGitClient
+
+    client, path = client_for(url)
+    result = client.get_refs(path.encode("utf-8"))
+    refs = _text_refs(result.refs)
+    if isinstance(client, LocalGitClient):  # local repositories do not send peeled tags
+        refs.update(_peel_local(path, refs))
+    head = result.symrefs.get(Ref(b"HEAD"))
+    return {"refs": refs, "head": head.decode("utf-8", "replace") if head else None}
+
+
+def fetch(url: str, repo_path: str) -> dict[str, Any]:
+    """Fetch the objects of every branch and tag into `repo_path`; refs stay untouched."""
+    client, path = client_for(url)
+    with Repo(repo_path) as repo:
+
+        def wanted(refs: Mapping[Ref, ObjectID | None], depth: int | None = None) -> list[ObjectID]:
+            tips = [sha for name, sha in refs.items() if _is_tip(name) and sha is not None]
+            return [sha for sha in dict.fromkeys(tips) if sha not in repo.object_store]
+
+        result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)
+    refs = {name: sha for name, sha in _text_refs(result.refs).items()
+            if not name.endswith(_PEELED.decode())}
+    return {"refs": refs}
+
+
+def _is_tip(name: bytes) -> bool:
+    return name.startswith(_WANTED) and not name.endswith(_PEELED)
+
+
+def _text_refs(refs: Mapping[Ref, ObjectID | None]) -> dict[str, str]:
+    """Branches and tags as text; a name that is not UTF-8 cannot be asked for in a desired
+    state, so it is left out rather than carried as bytes through JSON."""
+    text = {}
+    for name, sha in refs.items():
+        if sha is None or not name.startswith(_WANTED):
+            continue
+        try:
+            text[name.decode("utf-8")] = sha.decode("ascii")
+        except UnicodeDecodeError:
+            continue
+    return text
+
+
+def _peel_local(path: str, refs: dict[str, str]) -> dict[str, str]:
+    """The `^{}` entries a local repository does not advertise: annotated tags peeled."""
+    peeled = {}
+    with Repo(path) as repo:
+        for name, sha in refs.items():
+            if name.startswith("refs/tags/") and not name.endswith("^{}"):
+                target = peel_sha(repo.object_store, ObjectID(sha.encode("ascii")))[1].id
+                if target.decode("ascii") != sha:
+                    peeled[name + "^{}"] = target.decode("ascii")
+    return peeled
+
+
+def _transport_errors() -> tuple[type[Exception], ...]:
+    from dulwich.client import HTTPProxyUnauthorized, HTTPUnauthorized, StrangeHostname
+
+    return (OSError, GitProtocolError, NotGitRepository, HTTPUnauthorized,
+            HTTPProxyUnauthorized, StrangeHostname)
+
+
+def reason(exc: BaseException) -> str:
+    """One line saying why a transport failed; the parent adds the URL and a hint."""
+    from dulwich.client import StrangeHostname
+
+    if isinstance(exc, StrangeHostname):
+        return "the host name looks like a command-line option"
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+
+
+def _die_with_parent() -> None:
+    """End of file on stdin: the parent is gone, so take the whole group (ssh too) along,
+    if the group is this process's own (as `adapters.deadline` makes it)."""
+    while os.read(0, 4096):  # the raw descriptor: a daemon thread holding the lock of
+        pass  # sys.stdin's buffer would abort the interpreter's shutdown
+    if os.getpgrp() == os.getpid():
+        os.killpg(os.getpgrp(), signal.SIGKILL)
+    os._exit(1)
+
+
+def _request_line() -> bytes:
+    line = b""
+    while not line.endswith(b"\n"):
+        chunk = os.read(0, 1)  # byte by byte: nothing past the line is taken from the pipe
+        if not chunk:
+            break
+        line += chunk
+    return line
+
+
+def _terminated(signum: int, frame: object) -> None:
+    # SystemExit unwinds through dulwich, which then deletes its half-written pack file.
+    sys.exit(128 + signum)
+
+
+def main() -> int:
+    signal.signal(signal.SIGTERM, _terminated)
+    request = json.loads(_request_line())
+    threading.Thread(target=_die_with_parent, daemon=True).start()
+    try:
+        if request["op"] == "ls-remote":
+            answer = ls_remote(request["url"])
+        else:
+            answer = fetch(request["url"], request["repo"])
+    except _transport_errors() as exc:
+        answer = {"error": reason(exc)}
+    except Exception as exc:  # a hostile server's garbage, or a bug: one line, details below
+        traceback.print_exc()
+        answer = {"error": f"unexpected {type(exc).__name__} in the git client: {reason(exc)}"}
+    sys.stdout.write(json.dumps(answer))
+    sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
