@@ -62,15 +62,23 @@ _MARKER = "lpam-checkout"
 READ_LIMIT = 4 * MIB
 """The most `read_file` returns: app catalogs and parameter files are a few KiB, and a
 blob read whole into memory must not be able to exhaust the Pi's."""
+FILE_LIMIT = 100 * MIB
+"""The largest file lpam writes out of git. dulwich inflates a blob whole in memory to
+write it, so a 600 MB file would exhaust a Pi's; GitHub refuses files over 100 MiB too,
+so no app repository served from there holds one."""
 
 
 class GitStore:
     """The checkouts under `layout.repositories`, and the remotes they come from."""
 
-    def __init__(self, layout: Layout, *, timeout: float = 60.0) -> None:
-        """`timeout` bounds each network operation's total time (see adapters.remote)."""
+    def __init__(
+        self, layout: Layout, *, timeout: float = 60.0, file_limit: int = FILE_LIMIT
+    ) -> None:
+        """`timeout` bounds each network operation's total time (see adapters.remote);
+        no file larger than `file_limit` is checked out or exported."""
         self._layout = layout
         self._transport = Transport(timeout)
+        self._file_limit = file_limit
 
     # -- read-only, no network ---------------------------------------------------------
 
@@ -238,6 +246,7 @@ class GitStore:
                     "folder; push a commit without that path (lpam converges to it), or pin "
                     "another commit",
                 )
+            self._refuse_oversized(key, repo, commit, found.tree)
             marker = _marker(repo)
             if marker.exists():
                 # A power cut stopped a checkout half-way, and HEAD (moved last) still names
@@ -281,6 +290,7 @@ class GitStore:
                     hint="check the app's folder in the app catalog at that commit",
                 )
             tree_id = found[1]
+            self._refuse_oversized(key, repo, commit, tree_id)
             dest.mkdir(parents=True)
             root = os.fsencode(dest)
             safe_prefix: list[bytes] = []
@@ -308,6 +318,22 @@ class GitStore:
         return tree_id.decode("ascii")
 
     # -- helpers ------------------------------------------------------------------------
+
+    def _refuse_oversized(self, key: str, repo: Repo, commit: str, tree: ObjectID) -> None:
+        """Refuse a tree holding a file over the limit, judged from object headers only."""
+        for entry in iter_tree_contents(repo.object_store, tree):
+            assert entry.path is not None and entry.mode is not None and entry.sha is not None
+            if not stat.S_ISREG(entry.mode):
+                continue
+            size = object_size(repo.object_store, entry.sha)
+            if size is not None and size > self._file_limit:
+                raise GitError(
+                    f"{key}: commit {commit[:12]} holds '{_printable(entry.path)}' of "
+                    f"{size // MIB} MiB; lpam writes no file over "
+                    f"{self._file_limit // MIB} MiB out of git",
+                    hint="keep large data (models, recordings) out of the app repository, "
+                    "or pin another commit; nothing on the machine was changed",
+                )
 
     def _checkout_dir(self, key: str) -> Path:
         """The key's directory, refusing to replace or delete something that is not lpam's."""

@@ -152,3 +152,34 @@ def test_a_marker_that_cannot_be_replayed_is_dropped(
     assert not marker.exists()
     assert not (checkout / "A").exists()
     assert git_status(checkout) == ""
+
+
+@pytest.mark.parametrize("unsafe", [b"app/../escape", b"app/.git/config", b"app/../../escape"],
+                         ids=lambda p: p.decode())
+def test_exporting_an_app_folder_with_an_unsafe_path_writes_nothing_outside(
+    served: RepoBuilder, git_daemon: GitDaemon, store: GitStore, tmp_path: Path, unsafe: bytes
+) -> None:
+    bad = commit_on_main(served.bare, {b"app/run.sh": b"echo\n", unsafe: b"x\n"}, "hostile")
+    store.fetch(KEY, git_daemon.url("lab/apps.git"))
+    dest = tmp_path / "gen" / "alpha" / "g1"
+    with pytest.raises(GitError, match="unsafe path"):
+        store.export_folder(KEY, bad, "app", dest)
+    assert not dest.exists()
+    assert not any(p.name == "escape" for p in tmp_path.rglob("*"))
+
+
+def test_a_file_over_the_limit_is_neither_checked_out_nor_exported(
+    served: RepoBuilder, git_daemon: GitDaemon, layout: Layout, tmp_path: Path
+) -> None:
+    store = GitStore(layout, timeout=10.0, file_limit=1024 * 1024)
+    clean = served.rev("main")
+    big = served.commit("a model", {"app/model.bin": "\0" * (3 * 1024 * 1024)})
+    served.push()
+    store.fetch(KEY, git_daemon.url("lab/apps.git"))
+    store.checkout(KEY, clean)
+    with pytest.raises(GitError, match=r"'app/model\.bin' of 3 MiB; lpam writes no file over 1"):
+        store.checkout(KEY, big)
+    assert store.head(KEY) == clean and store.local_edits(KEY) == []
+    with pytest.raises(GitError, match=r"model\.bin"):
+        store.export_folder(KEY, big, "app", tmp_path / "gen")
+    assert not (tmp_path / "gen").exists()
