@@ -1,122 +1,123 @@
-"""A child process that is gone, with everything it started, when its deadline passes.
+"""A network operation in a child process that is gone, with everything it started, when its
+deadline passes.
 
 Place in the flow: `adapters.remote.Transport` runs each network operation through `run`,
 so that `--network-timeout` bounds the operation's total time whatever the transport does
-inside (see `adapters.wire`). The child leads a new process group, and that whole group is
-ended — SIGTERM, a short grace, then SIGKILL — on the deadline, on Ctrl-C or on any other
-exception in the parent; when the child finishes normally, anything it left running in its
-group (an ssh it started) is killed too. The group is always signalled before the child is
-reaped, while its zombie still holds the group id, so the signal cannot reach a stranger
-that was given a recycled id.
+inside (see `adapters.wire`).
+
+Children are forked by a multiprocessing *forkserver*: one helper process per lpam process,
+started at the first network operation, that has already imported dulwich's network stack
+(`adapters.wire`). Forking from it costs milliseconds, where starting a fresh interpreter
+and importing dulwich.client cost ~0.1 s of CPU per operation — measured in
+docs/benchmarks.md, that made a plan of 20 branches 5x slower. The forkserver is
+single-threaded, so forking it is safe even while lpam resolves repositories from a thread
+pool (forking lpam itself would not be). It exits when lpam does.
+
+Each child leads its own session and process group (an ssh it starts is in it). That whole
+group is ended — SIGTERM, a short grace so dulwich deletes its half-written pack, then
+SIGKILL — on the deadline, on Ctrl-C or on any other exception here; when the child has
+answered, anything it left in its group is killed too. A child whose pipe to lpam reaches
+end of file has lost lpam (killed) and kills its own group (`wire.serve`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-import selectors
 import signal
-import subprocess
+import threading
 import time
-from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from multiprocessing.connection import Connection
+    from multiprocessing.context import ForkServerContext
+    from multiprocessing.process import BaseProcess
 
 _GRACE = 1.0  # seconds between SIGTERM and SIGKILL: time for the child to delete temp files
-_STDERR_KEPT = 64 * 1024  # the tail of stderr that is kept for an error message
+_POLL = 0.2  # how often a wait checks that the child is still alive
+_lock = threading.Lock()
+_context: ForkServerContext | None = None
 
 
 class Expired(Exception):
     """The deadline passed; the child and its process group have been killed."""
 
 
-@dataclass(frozen=True)
-class Finished:
-    returncode: int
-    stdout: bytes
-    stderr: bytes
+def _forkserver() -> ForkServerContext:
+    global _context
+    with _lock:
+        if _context is None:
+            import multiprocessing
+
+            context = multiprocessing.get_context("forkserver")
+            context.set_forkserver_preload(["reconciler.adapters.wire", "dulwich.client"])
+            _context = context
+        return _context
 
 
-def run(argv: list[str], request: bytes, *, timeout: float) -> Finished:
-    """Run `argv` with `request` on its stdin, which stays open until the child ends (the
-    child may take end of file as the sign that its parent died); raise `Expired` when it
-    has not finished within `timeout` seconds."""
+def run(request: dict[str, str], *, timeout: float) -> dict[str, Any] | None:
+    """The child's answer to `request` (None if it died without one); `Expired` when it has
+    not answered within `timeout` seconds."""
+    from reconciler.adapters import wire
+
     deadline = time.monotonic() + timeout
-    proc = subprocess.Popen(
-        argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        start_new_session=True,
-    )
+    context = _forkserver()
+    mine, theirs = context.Pipe(duplex=True)
+    proc = context.Process(target=wire.serve, args=(theirs, request, dict(os.environ)),
+                           name="lpam-network", daemon=False)
     try:
-        assert proc.stdin is not None
-        with contextlib.suppress(BrokenPipeError):  # a child that died at once: see stderr
-            proc.stdin.write(request)
-            proc.stdin.flush()
-        stdout, stderr = _collect(proc, deadline)
-        while not _exited(proc.pid):  # it closed its output; its exit is a moment away
-            if time.monotonic() >= deadline:
-                raise Expired
-            time.sleep(0.005)
+        proc.start()
+        theirs.close()  # only the child holds its end: its death is end of file here
+        answer = _answer(mine, proc, deadline)
     except BaseException:
-        _end_group(proc)
+        _end(proc)
         raise
-    _signal_group(proc.pid, signal.SIGKILL)  # leftovers only: the child itself has exited
-    returncode = proc.wait()
-    _close(proc)
-    return Finished(returncode, stdout, stderr)
+    finally:
+        mine.close()
+    _signal_group(proc, signal.SIGKILL)  # leftovers only: the child has answered
+    proc.join(timeout=5)
+    return answer
 
 
-def _collect(proc: subprocess.Popen[bytes], deadline: float) -> tuple[bytes, bytes]:
-    """All of stdout and the tail of stderr, read until the child has closed stdout and
-    exited (a grandchild may hold stderr open longer) or the deadline passes."""
-    stdout, stderr = proc.stdout, proc.stderr
-    assert stdout is not None and stderr is not None
-    out: list[bytes] = []
-    err = b""
-    with selectors.DefaultSelector() as selector:
-        selector.register(stdout, selectors.EVENT_READ)
-        selector.register(stderr, selectors.EVENT_READ)
-        while selector.get_map():
-            answered = stdout.closed
-            if answered and _exited(proc.pid):
-                break
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise Expired
-            for key, _ in selector.select(min(remaining, 0.05) if answered else remaining):
-                pipe = stdout if key.fileobj is stdout else stderr
-                chunk = os.read(pipe.fileno(), 65536)
-                if not chunk:
-                    selector.unregister(pipe)
-                    pipe.close()
-                elif pipe is stdout:
-                    out.append(chunk)
-                else:
-                    err = (err + chunk)[-_STDERR_KEPT:]
-    return b"".join(out), err
+def _answer(conn: Connection, proc: BaseProcess, deadline: float) -> dict[str, Any] | None:
+    import json
+
+    while True:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            raise Expired
+        if conn.poll(min(remaining, _POLL)):
+            try:
+                data = conn.recv_bytes()
+            except (EOFError, OSError):
+                return None  # the child died without answering
+            try:
+                answer = json.loads(data)
+            except ValueError:
+                return None
+            return answer if isinstance(answer, dict) else None
+        if not proc.is_alive() and not conn.poll(0):
+            return None
 
 
-def _exited(pid: int) -> bool:
-    """Whether the child has exited, without reaping it (its zombie keeps the group id)."""
-    return os.waitid(os.P_PID, pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
-
-
-def _signal_group(pgid: int, signum: int) -> None:
+def _signal_group(proc: BaseProcess, signum: int) -> None:
+    """Signal the child's group — which exists only once the child made it (setsid); a
+    child killed before that is signalled directly."""
+    pid = proc.pid
+    if pid is None:
+        return
     with contextlib.suppress(ProcessLookupError, PermissionError):
-        os.killpg(pgid, signum)
+        os.killpg(pid, signum)
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.kill(pid, signum)
 
 
-def _end_group(proc: subprocess.Popen[bytes]) -> None:
+def _end(proc: BaseProcess) -> None:
     """SIGTERM the child's group, give it a moment to clean up, then SIGKILL what is left."""
-    _signal_group(proc.pid, signal.SIGTERM)
-    grace_ends = time.monotonic() + _GRACE
-    while not _exited(proc.pid) and time.monotonic() < grace_ends:
-        time.sleep(0.01)
-    _signal_group(proc.pid, signal.SIGKILL)
-    with contextlib.suppress(subprocess.TimeoutExpired):
-        proc.wait(timeout=5)  # SIGKILL cannot be ignored; only a hung kernel call delays it
-    _close(proc)
-
-
-def _close(proc: subprocess.Popen[bytes]) -> None:
-    for pipe in (proc.stdin, proc.stdout, proc.stderr):
-        if pipe is not None:
-            with contextlib.suppress(OSError):
-                pipe.close()
+    if proc.pid is None:
+        return
+    _signal_group(proc, signal.SIGTERM)
+    proc.join(timeout=_GRACE)
+    _signal_group(proc, signal.SIGKILL)
+    proc.join(timeout=5)  # SIGKILL cannot be ignored; only a hung kernel call delays it

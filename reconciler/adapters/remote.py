@@ -16,10 +16,8 @@ name are found, so an interrupted fetch changes nothing lpam reads.
 
 from __future__ import annotations
 
-import json
 import os
 import stat
-import sys
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlparse
@@ -36,7 +34,6 @@ _TAGS = "refs/tags/"
 _PEELED = "^{}"
 _SCHEMES = ("git", "http", "https", "ssh", "file")
 _NETWORK_HINT = "check the URL and the network; nothing on the machine was changed"
-_CHILD = [sys.executable, "-m", "reconciler.adapters.wire"]
 
 
 @dataclass(frozen=True)
@@ -125,21 +122,14 @@ class Transport:
         def failed(reason: str) -> GitError:
             return GitError(redact(f"cannot {action} {url}: {reason}"), hint=_NETWORK_HINT)
 
-        line = json.dumps(request).encode("utf-8") + b"\n"
         try:
-            done = deadline.run(_CHILD, line, timeout=self._timeout)
+            answer = deadline.run(request, timeout=self._timeout)
         except deadline.Expired:
             raise failed(f"no answer within {self._timeout:g} s") from None
         except OSError as exc:
             raise failed(f"cannot start the git client: {exc.strerror}") from None
-        try:
-            answer = json.loads(done.stdout)
-        except ValueError:
-            answer = None
-        if not isinstance(answer, dict):
-            said = done.stderr.decode("utf-8", "replace").strip().splitlines()
-            raise failed("the git client failed: "
-                         + (said[-1] if said else f"exit status {done.returncode}"))
+        if answer is None:
+            raise failed("the git client ended without an answer")
         if "error" in answer:
             raise failed(str(answer["error"]))
         return answer

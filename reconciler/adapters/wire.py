@@ -1,16 +1,16 @@
 """The network conversation with a remote, run in a child process that can be killed.
 
-Place in the flow: `adapters.remote.Transport` starts `python -m reconciler.adapters.wire`
-for every `ls_remote` and fetch, and kills the child's whole process group when the
-`--network-timeout` deadline passes or lpam is interrupted. dulwich has no total-time bound
+Place in the flow: `adapters.remote.Transport` has `adapters.deadline` fork a child that
+runs `serve` for every `ls_remote` and fetch, and kills the child's whole process group when
+the `--network-timeout` deadline passes or lpam is interrupted. dulwich has no total-time bound
 (its git:// client has no timeout at all, HTTP retries multiply the per-socket one, `ssh`
 waits as long as the ssh binary does, and a server dripping one byte at a time never trips
 a per-read timeout), so killing a process is the only bound that holds on every transport.
 
-Protocol, owned by this module: the parent writes one JSON request line on stdin and keeps
-stdin open; the child answers with one JSON document on stdout, either `{"refs": {...},
-"head": ...}` or `{"error": "one line"}`. A child whose stdin reaches end of file has lost
-its parent (lpam was killed) and kills its own group, so no ssh or fetch outlives lpam.
+Protocol, owned by this module: the child gets one request (`{"op": "ls-remote"|"fetch",
+...}`) and answers with one JSON document on its pipe, either `{"refs": {...}, "head": ...}`
+or `{"error": "one line"}`. A child whose pipe reaches end of file has lost lpam (killed)
+and kills its own group, so no ssh or fetch outlives lpam.
 
 A fetch only adds a pack to the repository's object store (dulwich writes it to a temporary
 file and renames it into place when complete); the parent writes refs after the child has
@@ -19,12 +19,12 @@ succeeded, so a child killed half-way changes nothing that lpam reads.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import sys
 import threading
-import traceback
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
@@ -36,6 +36,8 @@ from dulwich.refs import Ref
 from dulwich.repo import Repo
 
 if TYPE_CHECKING:
+    from multiprocessing.connection import Connection
+
     from dulwich.client import GitClient
 
 _WANTED = (b"refs/heads/", b"refs/tags/")
@@ -132,24 +134,14 @@ def reason(exc: BaseException) -> str:
     return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
 
 
-def _die_with_parent() -> None:
-    """End of file on stdin: the parent is gone, so take the whole group (ssh too) along,
-    if the group is this process's own (as `adapters.deadline` makes it)."""
-    while os.read(0, 4096):  # the raw descriptor: a daemon thread holding the lock of
-        pass  # sys.stdin's buffer would abort the interpreter's shutdown
-    if os.getpgrp() == os.getpid():
+def _die_with_lpam(conn: Connection) -> None:
+    """lpam never writes to the child: the pipe becomes readable only at end of file, when
+    lpam has closed it or died. Then take the whole group (an ssh too) along."""
+    with contextlib.suppress(OSError, EOFError):
+        conn.poll(None)
+    with contextlib.suppress(OSError):
         os.killpg(os.getpgrp(), signal.SIGKILL)
     os._exit(1)
-
-
-def _request_line() -> bytes:
-    line = b""
-    while not line.endswith(b"\n"):
-        chunk = os.read(0, 1)  # byte by byte: nothing past the line is taken from the pipe
-        if not chunk:
-            break
-        line += chunk
-    return line
 
 
 def _terminated(signum: int, frame: object) -> None:
@@ -157,24 +149,26 @@ def _terminated(signum: int, frame: object) -> None:
     sys.exit(128 + signum)
 
 
-def main() -> int:
-    signal.signal(signal.SIGTERM, _terminated)
-    request = json.loads(_request_line())
-    threading.Thread(target=_die_with_parent, daemon=True).start()
+def answer(request: dict[str, str]) -> dict[str, Any]:
+    """The answer to one request: refs, or a one-line error."""
     try:
         if request["op"] == "ls-remote":
-            answer = ls_remote(request["url"])
-        else:
-            answer = fetch(request["url"], request["repo"])
+            return ls_remote(request["url"])
+        return fetch(request["url"], request["repo"])
     except _transport_errors() as exc:
-        answer = {"error": reason(exc)}
-    except Exception as exc:  # a hostile server's garbage, or a bug: one line, details below
-        traceback.print_exc()
-        answer = {"error": f"unexpected {type(exc).__name__} in the git client: {reason(exc)}"}
-    sys.stdout.write(json.dumps(answer))
-    sys.stdout.flush()
-    return 0
+        return {"error": reason(exc)}
+    except Exception as exc:  # a hostile server's garbage, or a bug: one line
+        return {"error": f"unexpected {type(exc).__name__} in the git client: {reason(exc)}"}
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def serve(conn: Connection, request: dict[str, str], env: dict[str, str]) -> None:
+    """The child's whole life (forked by `adapters.deadline`): its own session and group,
+    lpam's environment as it is now (the forkserver's is from when it started: PATH, HOME,
+    proxies may differ), one answer on `conn`."""
+    os.setsid()
+    os.environ.clear()
+    os.environ.update(env)
+    signal.signal(signal.SIGTERM, _terminated)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # lpam decides; it ends the group itself
+    threading.Thread(target=_die_with_lpam, args=(conn,), daemon=True).start()
+    conn.send_bytes(json.dumps(answer(request)).encode("utf-8"))

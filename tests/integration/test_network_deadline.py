@@ -41,10 +41,9 @@ def layout(tmp_path: Path) -> Layout:
     return Layout(root=tmp_path / "root")
 
 
-def children(pid: int | None = None) -> list[int]:
-    """Live (not zombie) processes whose parent is `pid` (this process by default)."""
-    parent = os.getpid() if pid is None else pid
-    found = []
+def _parents() -> dict[int, int]:
+    """pid → parent pid of every live (not zombie) process."""
+    found = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
@@ -52,8 +51,35 @@ def children(pid: int | None = None) -> list[int]:
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        if fields[0] != "Z" and int(fields[1]) == parent:
-            found.append(int(entry.name))
+        if fields[0] != "Z":
+            found[int(entry.name)] = int(fields[1])
+    return found
+
+
+def _forkserver(pid: int) -> bool:
+    """Whether `pid` runs the forkserver's program: the long-lived forkserver (or its
+    resource tracker), which lives as long as the process that started it, by design — or
+    a network child it forked, which inherits its command line."""
+    try:
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+    return any(part in cmdline for part in (b"multiprocessing.forkserver",
+                                            b"multiprocessing.resource_tracker"))
+
+
+def children(pid: int | None = None) -> list[int]:
+    """Live descendants of `pid` (this process by default), the forkserver itself excluded:
+    the network children are its children."""
+    parents = _parents()
+    todo, found = [os.getpid() if pid is None else pid], []
+    while todo:
+        parent = todo.pop()
+        for child, its_parent in parents.items():
+            if its_parent == parent:
+                todo.append(child)
+                if not _forkserver(child) or _forkserver(parent):
+                    found.append(child)
     return found
 
 
@@ -225,17 +251,22 @@ def test_a_killed_lpam_takes_its_ssh_along(
         while not hanging_ssh.exists() and time.monotonic() < until and lpam.poll() is None:
             time.sleep(0.05)
         assert hanging_ssh.exists(), "ssh never started"
-        (network_child,) = children(lpam.pid)
+        ssh = int(hanging_ssh.read_text())
+        started = [p for p in children(lpam.pid) if p != ssh]
+        assert started, "no network child"
+        helpers = [p for p, parent in _parents().items() if parent == lpam.pid and _forkserver(p)]
     finally:
         lpam.kill()
         lpam.wait(timeout=10)
-    ssh = int(hanging_ssh.read_text())
     try:
-        assert gone(network_child), "the network child outlived lpam"
+        for pid in started:
+            assert gone(pid), "a network child outlived lpam"
         assert gone(ssh), "ssh outlived lpam"
+        for pid in helpers:
+            assert gone(pid), "the forkserver outlived lpam"
     finally:
-        end(network_child)
-        end(ssh)
+        for pid in [*started, ssh, *helpers]:
+            end(pid)
 
 
 # -- credentials and local paths ------------------------------------------------------------
