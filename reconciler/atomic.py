@@ -41,13 +41,3 @@ def write_atomic(path: Path, data: bytes | str, *, mode: int = 0o644) -> None:
         raise
     fsync_dir(path.parent)
 
-
-def append_durable(path: Path, line: str) -> None:
-    """Append one line and fsync: the journal's write. A torn last line is ignored on read."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW, 0o644)
-    try:
-        os.write(fd, (line.rstrip("\n") + "\n").encode("utf-8"))
-        os.fsync(fd)
-    finally:
-        os.close(fd)

@@ -5,25 +5,39 @@ of the recorded commit, never from the working tree: a repository may hold a sym
 link (`service -> /etc/shadow`, or an app folder linking to `/etc`), and a checkout may be
 edited, while a blob is exactly what was committed and a link in git is never followed.
 It never loads the graph stack, and reads nothing it does not show.
+
+What a repository holds is shown, so it is not trusted: a file too large is left out
+rather than failing the whole answer, and the table replaces control characters (a
+description could otherwise send escape sequences to the operator's terminal).
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from reconciler.documents import parse_catalog
-from reconciler.errors import ConfigError
+from reconciler.errors import ConfigError, GitError
 from reconciler.layout import Layout
 from reconciler.state import read_record
-from schemas.catalog import CATALOG_FILE, with_folder_files
+from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
 
 if TYPE_CHECKING:
-    from reconciler.adapters.git import GitStore
+    from schemas.record import AppRecord, StateRecord
 
 SHOWN_FILES = ("description.txt", "service")  # the scripts are not shown, so not read
-COLUMNS = ("repository", "ref", "commit", "app", "service", "installed", "running", "description")
+COLUMNS = ("repository", "ref", "commit", "app", "service", "installed", "running", "status",
+           "description")
+CELL_LIMIT = 80  # a table cell; the JSON output carries the whole value
+
+
+class Objects(Protocol):
+    """What status needs of the repository store (adapters.git.GitStore): committed blobs."""
+
+    def has_commit(self, key: str, commit: str) -> bool: ...
+
+    def read_file(self, key: str, commit: str, path: str) -> bytes | None: ...
 
 
 @dataclass(frozen=True)
@@ -35,65 +49,103 @@ class Row:
     service: str
     installed: bool
     running: bool
+    status: str | None  # the installed app's lifecycle (schemas.record.AppStatus), else None
     description: str
 
 
-def _folder_files(store: GitStore, key: str, commit: str, folder: str) -> dict[str, bytes]:
-    """The app's descriptive files as committed (regular blobs only: links are not read)."""
+def _folder_files(store: Objects, key: str, commit: str, folder: str) -> dict[str, bytes]:
+    """The app's descriptive files as committed (regular blobs only: links are not read).
+    A file too large to be a description is left out: the rest of the table still shows."""
     files = {}
     for name in SHOWN_FILES:
-        data = store.read_file(key, commit, f"{folder.rstrip('/')}/{name}")
+        try:
+            data = store.read_file(key, commit, f"{folder.rstrip('/')}/{name}")
+        except GitError:
+            continue
         if data is not None:
             files[name] = data
     return files
 
 
-def rows(layout: Layout) -> list[Row]:
-    from reconciler.adapters.git import GitStore
+def _app_row(
+    store: Objects, common: dict[str, str], app: CatalogApp, installed: AppRecord | None,
+    *, key: str, commit: str,
+) -> Row:
+    """One app's row; the installed app's files come from the commit it was installed from."""
+    if installed is not None:
+        commit, folder = installed.commit, installed.path
+    else:
+        folder = app.path
+    app = with_folder_files(app, _folder_files(store, key, commit, folder))
+    return Row(
+        **common, app=app.name, service=app.service or "-", installed=installed is not None,
+        running=installed is not None and installed.running,
+        status=None if installed is None else installed.status, description=app.description,
+    )
 
-    store = GitStore(layout)
-    record = read_record(layout)
+
+def _note(common: dict[str, str], description: str) -> Row:
+    return Row(**common, app="-", service="-", installed=False, running=False, status=None,
+               description=description)
+
+
+def rows(
+    layout: Layout, *, record: StateRecord | None = None, store: Objects | None = None
+) -> list[Row]:
+    """Every app of every recorded repository at its recorded commit, and the installed app
+    even when no catalog lists it any more (it is the one that may hold the CAN hardware)."""
+    if store is None:
+        from reconciler.adapters.git import GitStore
+
+        store = GitStore(layout)
+    if record is None:
+        record = read_record(layout)
     installed = record.app
     table: list[Row] = []
     for repo in record.repositories:
         common = {"repository": repo.key, "ref": repo.ref or "(default)",
                   "commit": repo.commit[:12]}
         if not store.has_commit(repo.key, repo.commit):
-            table.append(Row(**common, app="-", service="-", installed=False, running=False,
-                             description="(commit missing from the repository store)"))
+            table.append(_note(common, "(commit missing from the repository store)"))
             continue
-        data = store.read_file(repo.key, repo.commit, CATALOG_FILE)
+        try:
+            data = store.read_file(repo.key, repo.commit, CATALOG_FILE)
+        except GitError as exc:
+            table.append(_note(common, f"(catalog unreadable: {exc.message})"))
+            continue
         if data is None:
-            table.append(Row(**common, app="-", service="-", installed=False, running=False,
-                             description="(no libpanda-apps.yaml)"))
+            table.append(_note(common, "(no libpanda-apps.yaml)"))
             continue
         label = Path(f"{repo.key}@{repo.commit[:12]}/{CATALOG_FILE}")
         try:
             catalog = parse_catalog(label, data.decode("utf-8", "replace"))
         except ConfigError as exc:
-            table.append(Row(**common, app="-", service="-", installed=False, running=False,
-                             description=f"(catalog unreadable: {exc.message})"))
+            table.append(_note(common, f"(catalog unreadable: {exc.message})"))
             continue
         for app in catalog.apps:
-            is_installed = (
-                installed is not None and installed.name == app.name
-                and installed.repository == repo.key
-            )
-            commit, folder = (
-                (installed.commit, installed.path) if is_installed and installed is not None
-                else (repo.commit, app.path)
-            )
-            app = with_folder_files(app, _folder_files(store, repo.key, commit, folder))
-            table.append(Row(
-                **common, app=app.name, service=app.service or "-", installed=is_installed,
-                running=bool(is_installed and installed is not None and installed.running),
-                description=app.description,
-            ))
+            mine = (installed is not None and installed.name == app.name
+                    and installed.repository == repo.key)
+            table.append(_app_row(store, common, app, installed if mine else None,
+                                  key=repo.key, commit=repo.commit))
+    if installed is not None and not any(r.installed for r in table):
+        table.append(_unlisted(store, record, installed))
     return table
 
 
-def as_json(layout: Layout) -> dict[str, Any]:
-    record = read_record(layout)
+def _unlisted(store: Objects, record: StateRecord, installed: AppRecord) -> Row:
+    """The installed app when the recorded commit's catalog does not list it (an apply
+    that moved the repository was cut off, or the catalog changed)."""
+    repo = record.repository(installed.repository)
+    common = {"repository": installed.repository,
+              "ref": "-" if repo is None else repo.ref or "(default)",
+              "commit": installed.commit[:12]}
+    app = CatalogApp(name=installed.name, path=installed.path)
+    return _app_row(store, common, app, installed, key=installed.repository,
+                    commit=installed.commit)
+
+
+def as_json(layout: Layout, *, store: Objects | None = None) -> dict[str, Any]:
+    record = read_record(layout)  # once: an apply may rewrite it while status runs
     app = record.app
     return {
         "app": None if app is None else {
@@ -105,26 +157,40 @@ def as_json(layout: Layout) -> dict[str, Any]:
             {"key": r.key, "url": r.url, "ref": r.ref, "commit": r.commit}
             for r in record.repositories
         ],
-        "apps": [asdict(r) for r in rows(layout)],
+        "apps": [asdict(r) for r in rows(layout, record=record, store=store)],
+        "strays": [
+            {"name": s.name, "generation": s.generation, "stopped": s.stopped,
+             "pending": s.pending}
+            for s in record.strays
+        ],
         "serial": record.serial,
         "lineage": record.lineage,
     }
 
 
 def _cell(value: object) -> str:
+    """A value as one printable table cell: no control characters, at most CELL_LIMIT."""
     if isinstance(value, bool):
         return "yes" if value else "no"
-    return str(value)
+    if value is None:
+        return "-"
+    text = "".join(c if c.isprintable() else "?" for c in str(value))
+    return text if len(text) <= CELL_LIMIT else text[: CELL_LIMIT - 3] + "..."
 
 
-def as_table(layout: Layout) -> str:
-    table = rows(layout)
+def as_table(layout: Layout, *, store: Objects | None = None) -> str:
+    record = read_record(layout)
+    table = rows(layout, record=record, store=store)
+    strays = [f"Installed without a record: {_cell(s.name)} (generation "
+              f"{_cell(s.generation)}); `lpam apply` stops and uninstalls it before "
+              "installing any app." for s in record.strays]
     if not table:
-        return "No app repositories. Write a desired state and run `lpam apply`."
+        return "\n".join(
+            ["No app repositories. Write a desired state and run `lpam apply`.", *strays])
     cells = [[_cell(getattr(r, c)) for c in COLUMNS] for r in table]
     header = [c.capitalize() for c in COLUMNS]
     widths = [max(len(h), *(len(row[i]) for row in cells)) for i, h in enumerate(header)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)).rstrip()]
     lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)).rstrip()
               for row in cells]
-    return "\n".join(lines)
+    return "\n".join([*lines, *strays])

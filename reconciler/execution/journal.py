@@ -9,7 +9,10 @@ the next apply reports it and runs it again, while steps that ended are not repe
 The journal is advisory — the state record is what lpam trusts — so a damaged one never
 blocks anything: a reader skips what it cannot parse (bad UTF-8, JSON nested too deep, a
 file too large, a directory or link in its place), and a writer moves whatever is not a
-regular file aside to `journal.jsonl.damaged-<time>` and starts afresh, saying so.
+regular file aside to `journal.jsonl.damaged-<time>` and starts afresh, saying so. Each
+line is appended through `reading.open_append`, which never follows a link and never
+waits on a FIFO, so a link planted mid-apply is refused (a ConfigError naming the file)
+instead of being written through.
 """
 
 from __future__ import annotations
@@ -20,10 +23,10 @@ from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 
-from reconciler.atomic import append_durable, write_atomic
+from reconciler.atomic import write_atomic
 from reconciler.errors import ConfigError
 from reconciler.layout import Layout
-from reconciler.reading import MIB, read_bounded
+from reconciler.reading import MIB, open_append, read_bounded
 
 VERSION = 1
 LIMIT = 4 * MIB  # one apply's events are a few KiB; more is not a journal lpam wrote
@@ -42,7 +45,13 @@ class Journal:
         if moved is not None:
             warn(f"note: {self._path} was not a regular file; moved it to {moved} and "
                  "started a new journal")
-        write_atomic(self._path, "")
+        try:
+            write_atomic(self._path, "")
+        except OSError as exc:  # whatever stands there could not be moved aside either
+            raise ConfigError(
+                f"cannot start the apply journal: {exc.strerror}", path=self._path,
+                hint="move it elsewhere or delete it; lpam writes a new journal there",
+            ) from None
         self._write("apply-begin", None, now)
 
     def begin(self, step: str, now: datetime) -> None:
@@ -60,19 +69,31 @@ class Journal:
     def _write(self, event: str, step: str | None, now: datetime, **extra: str) -> None:
         line = {"v": VERSION, "apply": self._apply, "plan": self._plan, "pid": os.getpid(),
                 "event": event, "step": step, "at": now.isoformat(timespec="seconds"), **extra}
-        append_durable(self._path, json.dumps(line, sort_keys=True))
+        fd = open_append(self._path)
+        try:
+            os.write(fd, (json.dumps(line, sort_keys=True) + "\n").encode("utf-8"))
+            os.fsync(fd)  # journalled before the step's work: it must survive a power cut
+        finally:
+            os.close(fd)
 
 
 def _move_aside(path: Path, now: datetime) -> Path | None:
-    """Move a directory, link or other non-file at `path` out of the way; where it went."""
+    """Move a directory, link or other non-file at `path` out of the way; where it went.
+
+    It is kept, not deleted: a directory there may hold something a person put there."""
     try:
-        if path.is_symlink() or (path.exists() and not path.is_file()):
-            aside = path.with_name(f"{path.name}.damaged-{now.strftime('%Y%m%dT%H%M%S')}")
-            os.rename(path, aside)
-            return aside
+        if not (path.is_symlink() or (path.exists() and not path.is_file())):
+            return None
+        stem = f"{path.name}.damaged-{now.strftime('%Y%m%dT%H%M%S')}"
+        names = [stem, *(f"{stem}.{n}" for n in range(1, 100))]  # several within a second
+        aside = next((path.with_name(n) for n in names
+                      if not os.path.lexists(path.with_name(n))), None)
+        if aside is None:
+            return None
+        os.rename(path, aside)  # never over an existing name: it would replace an empty dir
+        return aside
     except OSError:
-        pass  # write_atomic then reports what stands in the way
-    return None
+        return None  # write_atomic then reports what stands in the way
 
 
 def read_events(layout: Layout) -> list[dict[str, object]]:

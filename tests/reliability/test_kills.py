@@ -62,6 +62,12 @@ def field_like_repo(builder: RepoBuilder) -> None:
     builder.push()
 
 
+def before_lpam(err: str, sig: signal.Signals) -> bool:
+    """A Ctrl-C that landed while Python itself was starting (importing `site`, before any
+    of lpam's code ran): Python prints that traceback, and no program can prevent it."""
+    return sig is signal.SIGINT and "/reconciler/" not in err and "KeyboardInterrupt" in err
+
+
 def daemons(root: Path) -> dict[str, int]:
     """App → pid of its daemon, for the daemons still alive."""
     alive = {}
@@ -102,7 +108,8 @@ def test_random_kills_never_put_two_apps_on_the_bus(
             os.kill(proc.pid, sig)
             killed += 1
         _, err = proc.communicate(timeout=120)
-        assert "internal error" not in err and "Traceback" not in err, err
+        assert "internal error" not in err, err
+        assert "Traceback" not in err or before_lpam(err, sig), err
         done = lpam("apply", "--yes", "--lock-timeout", "60")
         assert done.returncode == 0, f"round {round_} ({sig.name}): {done.stderr}"
         collisions = root / "collisions.log"

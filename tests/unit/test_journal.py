@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 
+from reconciler.errors import ConfigError
 from reconciler.execution.journal import Journal, interrupted_steps, read_events
 from reconciler.layout import Layout
 
@@ -38,7 +40,7 @@ def test_an_interrupted_step_is_found_despite_a_torn_last_line(layout: Layout) -
 
 @pytest.mark.parametrize("damage", [
     "invalid utf-8", "nested 100000 deep", "a directory", "a link to a secret", "huge",
-    "a step id that is not lpam's",
+    "a step id that is not lpam's", "a FIFO",
 ])
 def test_a_damaged_journal_reads_as_nothing_to_report(
     layout: Layout, tmp_path: Path, damage: str
@@ -56,7 +58,11 @@ def test_a_damaged_journal_reads_as_nothing_to_report(
         path.symlink_to(secret)
     elif damage == "huge":
         with path.open("wb") as out:
-            out.truncate(64 * 1024 * 1024)  # sparse: cheap to make, 64 MiB to read
+            out.truncate(600 * 1024 * 1024)  # sparse: cheap to make, 600 MB to read
+            out.seek(0, os.SEEK_END)
+            out.write(b"\n" + begun("x").encode())  # reached only by reading it all
+    elif damage == "a FIFO":
+        os.mkfifo(path)  # never answers: a plain open would wait for a writer forever
     else:
         path.write_text(begun("\x1b]0;owned\x07") + begun("x" * 10_000))
     assert interrupted_steps(layout) == []
@@ -89,3 +95,75 @@ def test_a_journal_planted_as_a_link_is_never_written_through(
     assert not layout.journal.is_symlink()
     assert [e["event"] for e in read_events(layout)] == ["apply-begin", "end"]
     assert os.path.exists(layout.journal)
+
+
+@pytest.mark.parametrize("kind", ["a directory", "a FIFO"])
+def test_each_damaged_journal_is_kept_aside_under_its_own_name(
+    layout: Layout, kind: str
+) -> None:
+    for attempt in ("first", "second"):  # both within the same second
+        layout.journal.unlink(missing_ok=True)  # the fresh journal the first apply wrote
+        if kind == "a directory":
+            layout.journal.mkdir()
+            (layout.journal / "keep").write_text(attempt)
+        else:
+            os.mkfifo(layout.journal)
+        Journal(layout, apply_id=attempt, plan="p").open(NOW)
+        assert layout.journal.is_file()
+    aside = sorted(p.name for p in layout.journal.parent.iterdir() if ".damaged-" in p.name)
+    assert aside == ["journal.jsonl.damaged-20261123T080000",
+                     "journal.jsonl.damaged-20261123T080000.1"]
+    if kind == "a directory":  # kept whole: a person may have put something there
+        assert [(layout.journal.parent / name / "keep").read_text() for name in aside] == [
+            "first", "second"]
+
+
+def test_a_journal_that_cannot_be_moved_aside_is_a_clear_error(
+    layout: Layout, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    layout.journal.mkdir()
+
+    def refuse(src: object, dst: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "rename", refuse)
+    with pytest.raises(ConfigError) as raised:
+        Journal(layout, apply_id="a", plan="p").open(NOW)
+    assert raised.value.path == layout.journal and raised.value.hint
+
+
+def test_a_link_planted_during_an_apply_is_refused_not_written_through(
+    layout: Layout, tmp_path: Path
+) -> None:
+    journal = Journal(layout, apply_id="a", plan="p")
+    journal.open(NOW)
+    outside = tmp_path / "outside"
+    outside.write_text("precious\n")
+    layout.journal.unlink()
+    layout.journal.symlink_to(outside)
+    with pytest.raises(ConfigError, match="symbolic link"):
+        journal.begin("start:alpha@1", NOW)
+    assert outside.read_text() == "precious\n"
+
+
+def test_a_fifo_planted_during_an_apply_never_hangs_it(layout: Layout) -> None:
+    journal = Journal(layout, apply_id="a", plan="p")
+    journal.open(NOW)
+    layout.journal.unlink()
+    os.mkfifo(layout.journal)
+    raised: list[BaseException] = []
+
+    def begin() -> None:
+        try:
+            journal.begin("start:alpha@1", NOW)
+        except BaseException as exc:  # handed to the test's thread
+            raised.append(exc)
+
+    writer = threading.Thread(target=begin, daemon=True)
+    writer.start()
+    writer.join(timeout=10)
+    if writer.is_alive():  # it waits for a reader: give it one, so the test can end
+        os.close(os.open(layout.journal, os.O_RDONLY | os.O_NONBLOCK))
+        writer.join(timeout=10)
+        pytest.fail("the journal write waited on a FIFO")
+    assert len(raised) == 1 and isinstance(raised[0], ConfigError)

@@ -1,0 +1,136 @@
+"""`lpam status` against a twin of the repository store: what it shows, and what it does
+not let a repository do to the answer (fail it, or write escape sequences to a terminal).
+
+The real store and real links are in tests/integration/test_status_safety.py.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from reconciler import status
+from reconciler.errors import GitError
+from reconciler.layout import Layout
+from reconciler.state import write_record
+from schemas.record import AppRecord, AppStatus, RepositoryRecord, StateRecord, Stray
+
+OLD, NEW = "a" * 40, "b" * 40
+CATALOG = b"apps:\n  - name: alpha\n  - name: beta\n"
+
+
+class Blobs:
+    """Committed files by (key, commit, path); a path mapped to an exception raises it."""
+
+    def __init__(self, files: dict[tuple[str, str, str], bytes | Exception]) -> None:
+        self.files = files
+
+    def has_commit(self, key: str, commit: str) -> bool:
+        return any(k == key and c == commit for k, c, _ in self.files)
+
+    def read_file(self, key: str, commit: str, path: str) -> bytes | None:
+        found = self.files.get((key, commit, path))
+        if isinstance(found, Exception):
+            raise found
+        return found
+
+
+def blobs(extra: dict[str, bytes | Exception] | None = None) -> Blobs:
+    """A repository `apps` at NEW with alpha and beta, and `extra` files by path."""
+    commit = NEW
+    files: dict[tuple[str, str, str], bytes | Exception] = {
+        ("apps", commit, "libpanda-apps.yaml"): CATALOG,
+        ("apps", commit, "alpha/description.txt"): b"the alpha app\n",
+        ("apps", commit, "alpha/service"): b"can\n",
+        ("apps", commit, "beta/description.txt"): b"the beta app\n",
+    }
+    files.update({("apps", commit, path): v for path, v in (extra or {}).items()})
+    return Blobs(files)
+
+
+def record(app: str | None = "alpha", state: AppStatus = "running", *,
+           commit: str = NEW, strays: list[Stray] | None = None) -> StateRecord:
+    installed = None if app is None else AppRecord(
+        name=app, repository="apps", commit=commit, tree="t" * 40, path=f"{app}/",
+        generation="g1", status=state)
+    return StateRecord(
+        repositories=[RepositoryRecord(key="apps", url="git://x/apps.git", ref=None,
+                                       commit=NEW)],
+        app=installed, strays=strays or [])
+
+
+@pytest.fixture
+def layout(tmp_path: Path) -> Layout:
+    return Layout(tmp_path / "root")
+
+
+@pytest.mark.parametrize("state", ["installing", "installed", "starting", "running",
+                                   "stopping", "uninstalling"])
+def test_each_app_shows_its_lifecycle_status(layout: Layout, state: AppStatus) -> None:
+    write_record(layout, record(state=state))
+    shown = status.as_json(layout, store=blobs())
+    apps = {r["app"]: r for r in shown["apps"]}
+    assert (apps["alpha"]["status"], apps["alpha"]["installed"]) == (state, True)
+    assert apps["alpha"]["running"] is (state == "running")
+    assert (apps["beta"]["status"], apps["beta"]["installed"]) == (None, False)
+    assert shown["app"]["status"] == state
+    header, alpha, beta = status.as_table(layout, store=blobs()).splitlines()
+    assert "Status" in header.split() and state in alpha.split() and state not in beta
+
+
+def test_a_file_too_large_leaves_the_rest_of_the_answer(layout: Layout) -> None:
+    too_big = GitError("apps: 'alpha/service' is 600000000 bytes")
+    rows = status.rows(layout, record=record(), store=blobs({"alpha/service": too_big}))
+    assert [(r.app, r.service, r.description) for r in rows] == [
+        ("alpha", "-", "the alpha app"), ("beta", "-", "the beta app")]
+    catalog_too_big = blobs({"libpanda-apps.yaml": GitError("catalog is 600000000 bytes")})
+    [note] = status.rows(layout, record=record(app=None), store=catalog_too_big)
+    assert note.app == "-" and "600000000 bytes" in note.description
+
+
+def test_the_table_never_sends_control_characters_to_the_terminal(layout: Layout) -> None:
+    write_record(layout, record())
+    hostile = blobs({"alpha/service": b"\x1b]0;owned\x07can\rfake\n",
+                     "alpha/description.txt": b"\x1b[2J" + b"x" * 10_000 + b"\n"})
+    table = status.as_table(layout, store=hostile)
+    assert all(c.isprintable() or c == "\n" for c in table)
+    assert max(len(cell) for line in table.splitlines() for cell in line.split()) \
+        <= status.CELL_LIMIT
+    shown = status.as_json(layout, store=hostile)  # whole, escaped by json.dumps
+    assert shown["apps"][0]["service"] == "\x1b]0;owned\x07can\rfake"
+
+
+def test_the_installed_app_shows_the_files_of_the_commit_it_came_from(
+    layout: Layout
+) -> None:
+    """The repository may have moved on (an apply cut off before the cutover): the files
+    shown for the installed app are those of what runs, not of the newer commit."""
+    store = blobs()
+    store.files.update({("apps", OLD, "alpha/description.txt"): b"the old alpha\n",
+                        ("apps", OLD, "alpha/service"): b"old-can\n"})
+    rows = status.rows(layout, record=record(commit=OLD), store=store)
+    assert [(r.app, r.service, r.description) for r in rows] == [
+        ("alpha", "old-can", "the old alpha"), ("beta", "-", "the beta app")]
+
+
+def test_the_installed_app_is_shown_when_the_catalog_no_longer_lists_it(
+    layout: Layout
+) -> None:
+    store = blobs()
+    store.files.update({("apps", OLD, "gamma/description.txt"): b"the gamma app\n",
+                        ("apps", OLD, "gamma/service"): b"can\n"})
+    rows = status.rows(layout, record=record("gamma", "starting", commit=OLD), store=store)
+    assert [(r.app, r.installed, r.status) for r in rows] == [
+        ("alpha", False, None), ("beta", False, None), ("gamma", True, "starting")]
+    assert (rows[-1].commit, rows[-1].description, rows[-1].service) == (
+        OLD[:12], "the gamma app", "can")
+
+
+def test_an_app_installed_without_a_record_is_shown(layout: Layout) -> None:
+    lost = StateRecord(strays=[Stray(name="alpha", generation="g1")])
+    write_record(layout, lost)
+    assert status.as_json(layout, store=Blobs({}))["strays"] == [
+        {"name": "alpha", "generation": "g1", "stopped": False, "pending": None}]
+    table = status.as_table(layout, store=Blobs({}))
+    assert "No app repositories" in table and "without a record: alpha" in table
