@@ -14,7 +14,7 @@ from pydantic import BaseModel, ValidationError
 
 from reconciler.errors import ConfigError
 from reconciler.loading import Document, load
-from schemas.catalog import Catalog, RawCatalog, normalise
+from schemas.catalog import Catalog, CatalogFault, RawCatalog, normalise
 from schemas.desired import DesiredState
 from schemas.plan import Plan
 
@@ -54,10 +54,15 @@ def _validate(doc: Document, data: Any, model: type[BaseModel], what: str) -> An
 
 def load_desired(path: Path) -> DesiredState:
     """A desired-state file of any supported version, as the current model."""
+    return desired_from(load(path))
+
+
+def desired_from(doc: Document) -> DesiredState:
+    """The desired state in a document already parsed (parsing is the costly part: a large
+    document is parsed once, whoever looks at it first)."""
     from migrations import upgrade
 
-    doc = load(path)
-    data = upgrade("desired-state", doc.data, path=path, position=doc.position)
+    data = upgrade("desired-state", doc.data, path=doc.path, position=doc.position)
     _check_duplicate_repositories(doc, data)
     state: DesiredState = _validate(doc, data, DesiredState, "desired state")
     return state
@@ -86,15 +91,19 @@ def _check_duplicate_repositories(doc: Document, data: dict[str, Any]) -> None:
 
 def parse_catalog(path: Path, text: str) -> Catalog:
     """An app catalog (`libpanda-apps.yaml`), either wild shape, normalised."""
-    doc = load(path, text)
+    return catalog_from(load(path, text))
+
+
+def catalog_from(doc: Document) -> Catalog:
+    """The app catalog in a document already parsed."""
     if not isinstance(doc.data, dict):
         raise doc.error("an app catalog is a mapping with an `apps:` list", [],
                         "see reference/libpanda-default-apps.libpanda-apps.yaml")
     raw: RawCatalog = _validate(doc, doc.data, RawCatalog, "catalog")
     try:
         return normalise(raw)
-    except ValueError as exc:
-        raise doc.error(str(exc), ["apps"]) from None
+    except CatalogFault as exc:
+        raise doc.error(str(exc), list(exc.loc)) from None
 
 
 def parse_json(
@@ -111,6 +120,9 @@ def parse_json(
     except json.JSONDecodeError as exc:
         raise ConfigError(f"not a valid {kind}: {exc.msg}", path=path, line=exc.lineno,
                           column=exc.colno, hint=hint) from None
+    except RecursionError:
+        raise ConfigError(f"not a valid {kind}: nested too deeply", path=path, line=1,
+                          column=1, hint=hint) from None
     if isinstance(data, dict) and version_key != "version" and version_key in data:
         data["version"] = data.pop(version_key)
     data = upgrade(kind, data, path=path)

@@ -9,13 +9,27 @@ from __future__ import annotations
 
 from pathlib import Path
 
+MESSAGE_LIMIT = 400
+
+
+def shorten(text: str, limit: int = MESSAGE_LIMIT) -> str:
+    """`text` cut in the middle to at most about `limit` characters: a message that echoes
+    a 900 KB value must still be one readable line."""
+    if len(text) <= limit:
+        return text
+    keep = max(limit - 20, 20)
+    return f"{text[: keep * 3 // 4]} … ({len(text) - keep} characters left out) … " \
+        f"{text[len(text) - keep // 4:]}"
+
 
 class LpamError(Exception):
-    """Base of every error lpam reports to a user."""
+    """Base of every error lpam reports to a user. Its message is one line of bounded
+    length, whatever value it echoes."""
 
     exit_code = 1
 
     def __init__(self, message: str, *, hint: str | None = None) -> None:
+        message = shorten(message)
         super().__init__(message)
         self.message = message
         self.hint = hint

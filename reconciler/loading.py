@@ -9,14 +9,33 @@ state survive when lpam rewrites it (import, demo switch).
 from __future__ import annotations
 
 import io
+import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from reconciler.errors import ConfigError
+from reconciler.reading import read_bounded
 
 MAX_DOCUMENT_BYTES = 1024 * 1024
+MAX_DEPTH = 64
+"""Nesting deeper than this is refused as the parser meets it: lpam's documents are a few
+levels deep, and ruamel.yaml's composer recurses once per level (a document nested
+100,000 deep exhausted Python's stack)."""
+MAX_VALUES = 5000
+"""More scalars than this is refused as the parser meets them: a desired state holds tens,
+the field's largest catalog a few hundred, and ruamel.yaml's round-trip parser takes about
+0.1 ms per value (a 60,000-key document took 17 s to be refused)."""
+_SURROGATES = re.compile("[\ud800-\udfff]")
+
+
+class _Refused(Exception):
+    """Raised by the event guard inside ruamel.yaml; turned into a ConfigError by `load`."""
+
+    def __init__(self, message: str, mark: Any, hint: str) -> None:
+        super().__init__(message)
+        self.message, self.mark, self.hint = message, mark, hint
 
 
 @dataclass(frozen=True)
@@ -38,28 +57,78 @@ class Document:
         return ConfigError(message, path=self.path, line=line, column=column, hint=hint)
 
 
+def _guarded_parser() -> type:
+    """ruamel.yaml's round-trip parser, with every event checked as the composer takes it.
+
+    One pass, before anything is built: what lpam's documents never need and ruamel.yaml
+    would misread or crash on is refused at its line and column — explicit tags (`!!bool
+    ex` crashed the constructor, `!!set` and `!foo` built values no schema expects),
+    anchors and aliases (a self-referencing alias was read as null), lone surrogates
+    (they passed validation and crashed later, when written as UTF-8), and nesting past
+    MAX_DEPTH, or more than MAX_VALUES values.
+    """
+    from ruamel.yaml import events
+    from ruamel.yaml.parser import RoundTripParser
+
+    class GuardedParser(RoundTripParser):
+        depth = 0
+        values = 0
+
+        def get_event(self) -> Any:
+            event = super().get_event()
+            mark = event.start_mark
+            if isinstance(event, events.AliasEvent) or getattr(event, "anchor", None):
+                raise _Refused("YAML anchors and aliases (&name, *name) are not supported",
+                               mark, "write the value out in full where it is needed")
+            if getattr(event, "tag", None) is not None:
+                tag = str(event.tag).replace("tag:yaml.org,2002:", "!!")
+                raise _Refused(f"YAML tags ({shorten(tag, 40)}) are not supported",
+                               mark, "remove the tag; quote the value if it must be a string")
+            if isinstance(event, events.ScalarEvent):
+                self.values += 1
+                if self.values > MAX_VALUES:
+                    raise _Refused(f"the document holds more than {MAX_VALUES} values", mark,
+                                   "lpam's documents hold tens of values; is it the right "
+                                   "file?")
+            if isinstance(event, events.ScalarEvent) and _SURROGATES.search(event.value):
+                raise _Refused("the text contains a lone surrogate (an invalid \\uD800-"
+                               "\\uDFFF escape)", mark, "write the character itself, or "
+                               "escape it as one \\U00XXXXXX code point")
+            if isinstance(event, events.CollectionStartEvent):
+                self.depth += 1
+                if self.depth > MAX_DEPTH:
+                    raise _Refused(f"the document is nested more than {MAX_DEPTH} levels deep",
+                                   mark, "lpam's documents are a few levels deep; is it the "
+                                   "right file?")
+            elif isinstance(event, events.CollectionEndEvent):
+                self.depth -= 1
+            return event
+
+    return GuardedParser
+
+
 def _yaml(typ: str = "rt") -> Any:
     from ruamel.yaml import YAML
 
     yaml = YAML(typ=typ)
     yaml.allow_duplicate_keys = False
+    if typ == "rt":
+        yaml.Parser = _guarded_parser()
     return yaml
+
+
+_DIRECTIVE = re.compile(r"^%(YAML|TAG)\b", re.MULTILINE)
 
 
 def read_text(path: Path) -> str:
     """Read a document as UTF-8 text; empty, huge, binary or unreadable files are errors."""
     try:
-        raw = path.read_bytes()
+        raw = read_bounded(path, limit=MAX_DOCUMENT_BYTES, what="the document",
+                           hint="point lpam at the YAML document itself")
     except FileNotFoundError:
         raise ConfigError(
             "file not found", path=path, hint="check the path, or pass -f FILE"
         ) from None
-    except IsADirectoryError:
-        raise ConfigError("is a directory, not a file", path=path) from None
-    except OSError as exc:
-        raise ConfigError(f"cannot read: {exc.strerror}", path=path) from None
-    if len(raw) > MAX_DOCUMENT_BYTES:
-        raise ConfigError("file is larger than 1 MiB; is it the right file?", path=path)
     if b"\x00" in raw:
         raise ConfigError(
             "file is binary, not YAML text", path=path, line=1, column=1,
@@ -87,8 +156,21 @@ def load(path: Path, text: str | None = None) -> Document:
 
     if text is None:
         text = read_text(path)
+    directive = _DIRECTIVE.search(text)
+    if directive is not None:
+        raise ConfigError(
+            f"YAML directives (%{directive.group(1)}) are not supported", path=path,
+            line=text.count("\n", 0, directive.start()) + 1, column=1,
+            hint="remove the line; lpam reads YAML 1.2",
+        )
     try:
         tree = _yaml().load(text)
+    except _Refused as exc:
+        raise ConfigError(exc.message, path=path, line=exc.mark.line + 1,
+                          column=exc.mark.column + 1, hint=exc.hint) from None
+    except RecursionError:  # a safety net: the guard stops nesting long before this
+        raise ConfigError(f"the document is nested more than {MAX_DEPTH} levels deep",
+                          path=path, line=1, column=1) from None
     except MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         problem = exc.problem or exc.context or "invalid YAML"
@@ -104,6 +186,10 @@ def load(path: Path, text: str | None = None) -> Document:
     except YAMLError as exc:
         raise ConfigError(f"not valid YAML: {exc}", path=path, line=1, column=1) from None
     return Document(path=path, data=plain(tree, path), tree=tree)
+
+
+def shorten(text: str, limit: int) -> str:
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 MAX_NODES = 100_000

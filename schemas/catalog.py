@@ -109,13 +109,22 @@ class Catalog(_Strict):
         return next((a for a in self.apps if a.name == name), None)
 
 
+class CatalogFault(ValueError):
+    """A fault `normalise` finds, with where it is (`loc`) in the catalog document."""
+
+    def __init__(self, message: str, loc: tuple[str | int, ...]) -> None:
+        super().__init__(message)
+        self.loc = loc
+
+
 def normalise(raw: RawCatalog) -> Catalog:
-    """Both wild shapes to the one model; raises ValueError on a repeated app name."""
+    """Both wild shapes to the one model; CatalogFault on a repeated app name or a bad ROS
+    repository name."""
     apps: list[CatalogApp] = []
     seen: set[str] = set()
-    for app in raw.apps:
+    for index, app in enumerate(raw.apps):
         if app.name in seen:
-            raise ValueError(f"app {app.name!r} is listed twice")
+            raise CatalogFault(f"app {app.name!r} is listed twice", ("apps", index, "name"))
         seen.add(app.name)
         deps = list(app.dependencies)
         ros = list(app.ros_repositories)
@@ -127,7 +136,11 @@ def normalise(raw: RawCatalog) -> Catalog:
         elif isinstance(app.properties, list):
             owns = any(bool(flag.owns_panda) for flag in app.properties)
         for r in ros:
-            check_owner_repo(f"{r.owner}/{r.repo}")
+            try:
+                check_owner_repo(f"{r.owner}/{r.repo}")
+            except ValueError as exc:
+                raise CatalogFault(f"app {app.name}: ROS repository: {exc}",
+                                   ("apps", index)) from None
         apps.append(
             CatalogApp(
                 name=app.name,

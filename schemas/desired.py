@@ -20,15 +20,16 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictStr, field_validator, model_validator
 
 from schemas.names import (
-    PARAM_NAME,
     check_app_name,
     check_owner_repo,
+    check_param_name,
     check_ref,
     check_url,
     repository_key,
 )
 
 CURRENT_VERSION = 1
+PARAM_VALUE_LIMIT = 4096  # an environment variable's value; kernels cap one at 128 KiB
 
 
 class RepositorySpec(BaseModel):
@@ -123,13 +124,12 @@ class AppSpec(BaseModel):
     @classmethod
     def _params(cls, value: dict[str, str]) -> dict[str, str]:
         for key, item in value.items():
-            if not PARAM_NAME.match(key) or key.upper().startswith("LPAM_"):
-                raise ValueError(
-                    f"parameter name {key!r} must look like an environment variable "
-                    "(letters, digits, '_') and must not start with LPAM_"
-                )
+            check_param_name(key)
             if "\x00" in item:
                 raise ValueError(f"parameter {key!r} contains a NUL byte")
+            if len(item) > PARAM_VALUE_LIMIT:
+                raise ValueError(f"parameter {key!r} is longer than {PARAM_VALUE_LIMIT} "
+                                 "characters")
         return value
 
 

@@ -49,14 +49,60 @@ def check_ref(value: str) -> str:
     return value
 
 
+URL_LIMIT = 2048
+PART_LIMIT = 200  # a URL's last part names a directory: file names stop at 255 bytes
+
+
 def check_url(value: str) -> str:
+    """A URL or local path lpam can hand to its git client, refused here rather than
+    misread there: dulwich sends `host:path` and any URL it cannot parse to the ssh binary."""
+    from urllib.parse import urlsplit
+
     if not value or value.startswith("-"):
         raise ValueError("a URL must not be empty or start with '-'")
-    if any(ch in _SHELL or ord(ch) < 32 for ch in value):
-        raise ValueError("the URL contains a space or a shell metacharacter")
-    if "://" in value and not value.startswith(URL_SCHEMES):
+    if len(value) > URL_LIMIT:
+        raise ValueError(f"the URL is longer than {URL_LIMIT} characters")
+    if any(ch in _SHELL or ord(ch) < 32 or 0xD800 <= ord(ch) <= 0xDFFF for ch in value):
+        raise ValueError("the URL contains a space, a control or a shell metacharacter")
+    if any(len(part.encode("utf-8", "replace")) > PART_LIMIT for part in value.split("/")):
+        raise ValueError(f"a part of the URL between '/' is longer than {PART_LIMIT} bytes")
+    if "://" not in value:
+        if ":" in value:
+            raise ValueError("a local path must not contain ':' (git would read 'host:path' "
+                             "as ssh); for ssh write ssh://host/path")
+        return value
+    if not value.startswith(URL_SCHEMES):
         raise ValueError("use an https://, http://, git://, ssh:// or file:// URL, or a path")
+    try:
+        port = urlsplit(value).port
+    except ValueError:
+        raise ValueError("the URL's port must be a number from 1 to 65535") from None
+    if port == 0:
+        raise ValueError("the URL's port must be a number from 1 to 65535")
     return value
+
+
+UNSAFE_PARAMS = frozenset({
+    "BASH_ENV", "ENV", "SHELLOPTS", "BASHOPTS", "PS4", "IFS", "PATH", "CDPATH", "GLOBIGNORE",
+    "PROMPT_COMMAND", "NODE_OPTIONS", "PERL5OPT", "PERL5LIB", "RUBYOPT", "RUBYLIB",
+})
+UNSAFE_PARAM_PREFIXES = ("LD_", "PYTHON", "LPAM_", "BASH_FUNC_", "DYLD_", "GCONV_")
+
+
+def check_param_name(name: str) -> str:
+    """A parameter becomes an environment variable of every app script, and parameters may
+    come from a phone over Bluetooth: names that change how bash, the dynamic loader or an
+    interpreter starts (BASH_ENV made bash source a file before install.sh; PATH replaced
+    commands; LD_PRELOAD, PYTHONPATH…) would let a parameter run code, so they are refused.
+    LPAM_* are lpam's own."""
+    if not PARAM_NAME.match(name):
+        raise ValueError(f"parameter name {name!r} must look like an environment variable "
+                         "(letters, digits, '_')")
+    upper = name.upper()
+    if upper in UNSAFE_PARAMS or upper.startswith(UNSAFE_PARAM_PREFIXES):
+        raise ValueError(f"parameter name {name!r} would change how the app's scripts run "
+                         "(shell, loader or interpreter settings); choose another name")
+    return name
 
 
 def is_hex_commit(ref: str) -> bool:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from reconciler.errors import ConfigError
+from reconciler.reading import read_bounded
 
 DEFAULT_ETC_DIR = Path("/etc/libpanda.d")
 APP_FILE = "app"
@@ -84,12 +85,13 @@ def _subdirs(directory: Path) -> list[Path]:
 
 
 def _read(path: Path) -> str:
+    """A file's text; a FIFO, a device or a huge file is refused, never read (a FIFO hung
+    the import, /dev/zero would fill memory)."""
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"cannot read: {exc.strerror}", path=path) from None
-    if len(raw) > MAX_BYTES:
-        raise ConfigError("file is larger than 1 MiB; not an LPAM file", path=path)
+        raw = read_bounded(path, limit=MAX_BYTES, what="LPAM file",
+                           hint="an LPAM file is a small regular text file")
+    except FileNotFoundError:
+        raise ConfigError("file not found", path=path) from None
     if b"\x00" in raw:
         raise ConfigError("file is binary, not text", path=path, line=1, column=1)
     try:
@@ -103,8 +105,8 @@ def _read(path: Path) -> str:
 
 def _head(clone: Path) -> str | None:
     try:
-        return (clone / ".git" / "HEAD").read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError):
+        return read_bounded(clone / ".git" / "HEAD", limit=4096).decode("utf-8")
+    except (OSError, ConfigError, UnicodeDecodeError):
         return None
 
 
