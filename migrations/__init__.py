@@ -59,7 +59,10 @@ def upgrade(
         raise ValueError(f"unknown document kind {kind!r}")
     label = _LABELS[kind]
     if not isinstance(data, Mapping):
-        found = "nothing" if data is None else type(data).__name__
+        # Say what the user wrote in YAML's words, not the parser's class names
+        # (a lone `=` reaches here as ruamel's TaggedScalar).
+        found = ("nothing" if data is None else "a list" if isinstance(data, list)
+                 else "a single value")
         raise ConfigError(
             f"expected a mapping (key: value) at the top of the {label}, found {found}",
             path=path, line=1, column=1, hint=_MISSING_HINTS[kind] if data is None else None,

@@ -234,7 +234,9 @@ def locate(tree: Any, loc: Iterable[str | int]) -> tuple[int, int]:
     """Walk `loc` through the round-trip tree; return the deepest known 1-based position."""
     line, column = 1, 1
     lc = getattr(tree, "lc", None)
-    if lc is not None:
+    # A bare top-level scalar (such as `=`, which ruamel reads as a tagged value) has
+    # an `lc` whose line is None: keep the document's start then.
+    if lc is not None and lc.line is not None and lc.col is not None:
         line, column = lc.line + 1, lc.col + 1
     node = tree
     for part in loc:
