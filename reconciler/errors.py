@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 MESSAGE_LIMIT = 400
+DETAIL_LINES = 20
 
 
 def shorten(text: str, limit: int = MESSAGE_LIMIT) -> str:
@@ -28,15 +29,20 @@ class LpamError(Exception):
 
     exit_code = 1
 
-    def __init__(self, message: str, *, hint: str | None = None) -> None:
+    def __init__(self, message: str, *, hint: str | None = None,
+                 details: list[str] | None = None) -> None:
         message = shorten(message)
         super().__init__(message)
         self.message = message
         self.hint = hint
+        self.details = [shorten(line, 200) for line in (details or [])[-DETAIL_LINES:]]
 
     def render(self) -> str:
-        """The text the CLI prints: the message, then the hint on its own line."""
+        """The text the CLI prints: the message, any details (such as the last lines of a
+        failed app's output) indented below it, then the hint on its own line."""
         text = f"error: {self.message}"
+        for line in self.details:
+            text += f"\n  | {''.join(c if c.isprintable() else '?' for c in line)}"
         if self.hint:
             text += f"\n  hint: {self.hint}"
         return text
@@ -114,3 +120,14 @@ class LockError(LpamError):
 
 class StepError(LpamError):
     """A step of an apply failed; the journal says how far the apply got."""
+
+
+class ServiceError(LpamError):
+    """The service manager (systemd, supervisord) refused or failed an operation on a unit,
+    or could not be reached or started."""
+
+
+class HealthError(StepError):
+    """The started app did not stay healthy; the apply rolls back to the previous app."""
+
+    exit_code = 3

@@ -74,6 +74,83 @@ class Layout:
     def debug_log(self) -> Path:
         return self.logs / "debug.log"
 
+    @property
+    def app_logs(self) -> Path:
+        """The output of each app supervisord runs (systemd keeps it in its journal)."""
+        return self.logs / "apps"
+
+    @property
+    def run_dir(self) -> Path:
+        """`/run/lpam`: runtime files that mean nothing after a reboot (a tmpfs there)."""
+        return self.root / "run" / "lpam"
+
+    @property
+    def supervisor_dir(self) -> Path:
+        """The configuration of the supervisord lpam starts for this root."""
+        return self.etc / "supervisor"
+
+    @property
+    def supervisor_conf(self) -> Path:
+        return self.supervisor_dir / "supervisord.conf"
+
+    @property
+    def supervisor_programs(self) -> Path:
+        """One `<unit>.conf` per unit lpam installed, included by supervisord.conf."""
+        return self.supervisor_dir / "programs"
+
+    def supervisor_program(self, unit: str) -> Path:
+        if not unit or "/" in unit or unit.startswith("."):
+            raise ValueError(f"not a unit name: {unit!r}")
+        return self.supervisor_programs / f"{unit}.conf"
+
+    @property
+    def supervisor_socket(self) -> Path:
+        return self.run_dir / "supervisor.sock"
+
+    @property
+    def supervisor_pid(self) -> Path:
+        return self.run_dir / "supervisord.pid"
+
+    @property
+    def supervisor_lock(self) -> Path:
+        """Held while one lpam process checks for and starts supervisord."""
+        return self.run_dir / "supervisord.lock"
+
+    @property
+    def supervisor_starts(self) -> Path:
+        """Where in supervisord's log each unit was last started by lpam (restart counts)."""
+        return self.run_dir / "starts"
+
+    @property
+    def supervisor_log(self) -> Path:
+        return self.logs / "supervisord.log"
+
+    @property
+    def libpanda(self) -> Path:
+        """LPAM's folder (`/etc/libpanda.d`): the field's scripts look for apps under it."""
+        return self.root / "etc" / "libpanda.d"
+
+    @property
+    def libpanda_apps(self) -> Path:
+        return self.libpanda / "apps"
+
+    def app_link(self, folder: str) -> Path:
+        """`/etc/libpanda.d/apps/<folder>`: the installed generation, where LPAM put apps."""
+        if folder != slug(folder):
+            raise ValueError(f"not an app folder name: {folder!r}")
+        return self.libpanda_apps / folder
+
+    @property
+    def systemd_units(self) -> Path:
+        """Where the systemd adapter writes the units of scriptless apps (the directory for
+        the administrator's units, which outranks the packages' /lib/systemd/system)."""
+        return self.root / "etc" / "systemd" / "system"
+
+    @property
+    def replaced(self) -> Path:
+        """LPAM's own copies of app folders, kept when lpam puts its link in their place."""
+        return self.var / "replaced"
+
     def repository_dir(self, key: str) -> Path:
         """The checkout of the repository known as `key` (e.g. `owner/name`)."""
         return self.repositories / slug(key)

@@ -15,9 +15,12 @@ from tests.gitserver import GitDaemon, RepoBuilder
 def hermetic_env(
     tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
 ) -> Iterator[Path]:
-    """No test sees the developer's git config, identity or HOME (dulwich's TestCase does so)."""
+    """No test sees the developer's git config, identity or HOME (dulwich's TestCase does so),
+    and no test asks this machine's own systemd about anything: the service manager is
+    supervisord under each test's root unless a test puts a recording `systemctl` on PATH."""
     home = tmp_path_factory.mktemp("home")
     monkeypatch.setenv("HOME", str(home))
+    monkeypatch.setenv("LPAM_SERVICES", "supervisor")
     monkeypatch.delenv("XDG_CONFIG_HOME", raising=False)
     for name in list(os.environ):
         if name.startswith("GIT_"):

@@ -120,6 +120,18 @@ class MemoryScripts:
             raise StepError(f"{app}: {script} failed with exit code {code}")
         return True
 
+    def check(
+        self, app: str, app_dir: Path, argv: list[str], params: dict[str, str], *,
+        timeout: float,
+    ) -> tuple[bool, str]:
+        """A health check passes unless `app:check` is in `fail` (once)."""
+        call = f"{app}:check"
+        self.calls.append(call)
+        if call in self.fail:
+            self.fail.discard(call)
+            return False, "exit code 1"
+        return True, "exit code 0"
+
     def _effect(self, app: str, script: str) -> None:
         others = (self.installed | self.active) - {app}
         if script in ("install.sh", "start.sh") and others:

@@ -72,10 +72,7 @@ class ScriptRunner:
                 )
             self._note(f"== {app}: no {script}, nothing to run\n")
             return False
-        env = {k: os.environ[k] for k in PASSED_THROUGH if k in os.environ}
-        env.setdefault("PATH", DEFAULT_PATH)
-        env.update(params)
-        env.update(LPAM_ROOT=str(self.root), LPAM_APP=app, LPAM_APP_DIR=str(app_dir))
+        env = self._env(app, app_dir, params)
         self.runs.mkdir(parents=True, exist_ok=True)
         result = self.runs / f"{run}.exit"
         fd = "" if self.lock_fd is None else str(self.lock_fd)
@@ -114,6 +111,43 @@ class ScriptRunner:
                 hint=f"see its output in {self.log}; fix the script and apply again",
             )
         return True
+
+    def _env(self, app: str, app_dir: Path, params: dict[str, str]) -> dict[str, str]:
+        env = {k: os.environ[k] for k in PASSED_THROUGH if k in os.environ}
+        env.setdefault("PATH", DEFAULT_PATH)
+        env.update(params)
+        env.update(LPAM_ROOT=str(self.root), LPAM_APP=app, LPAM_APP_DIR=str(app_dir))
+        # The folder is a link to the generation: `$PWD` names the link, as after `cd`
+        # into it, so a script that builds paths from it finds /etc/libpanda.d/apps/…
+        env["PWD"] = str(app_dir)
+        return env
+
+    def check(
+        self, app: str, app_dir: Path, argv: list[str], params: dict[str, str], *,
+        timeout: float,
+    ) -> tuple[bool, str]:
+        """Run a health check (an argument list, in the app's folder, with its parameters);
+        its output goes to the apply log. A check over `timeout` is killed with its group."""
+        self._note(f"== {app}: health check {argv!r} (in {app_dir})\n")
+        out = open_append(self.log)
+        try:
+            proc = subprocess.Popen(
+                argv, cwd=app_dir, env=self._env(app, app_dir, params),
+                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, process_group=0,
+            )
+        except OSError as exc:
+            return False, f"cannot run it: {exc.strerror}"
+        finally:
+            os.close(out)
+        try:
+            code = proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            _stop_group(proc)
+            return False, f"it did not finish within {timeout:g} s"
+        except BaseException:
+            _stop_group(proc)
+            raise
+        return code == 0, f"exit code {code} (output in {self.log})"
 
     def _note(self, text: str) -> None:
         fd = open_append(self.log)

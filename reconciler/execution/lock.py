@@ -19,11 +19,11 @@ import errno
 import fcntl
 import os
 import stat
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 from reconciler.errors import LockError
+from reconciler.flock import wait_exclusive
 from reconciler.layout import Layout
 
 POLL_SECONDS = 0.1
@@ -102,15 +102,8 @@ def apply_lock(layout: Layout, *, timeout: float) -> Iterator[Lock]:
     """Hold the lock for the block, polling for at most `timeout` seconds to get it."""
     fd = _open(layout)
     try:
-        deadline = time.monotonic() + max(timeout, 0.0)
-        while True:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if time.monotonic() >= deadline:
-                    raise _busy_message(_holder(fd), layout) from None
-                time.sleep(POLL_SECONDS)
+        if not wait_exclusive(fd, timeout=timeout, poll=POLL_SECONDS):
+            raise _busy_message(_holder(fd), layout)
         lock = Lock(fd)
         lock.note("applying")
         yield lock

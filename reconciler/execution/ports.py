@@ -1,4 +1,4 @@
-"""The ports the executor drives: the repository store and the script runner.
+"""The ports the executor drives: the repository store, the script runner, the services.
 
 Steps see only these protocols, so the same steps run against the real adapters
 (adapters/git.py, adapters/scripts.py) and against the in-memory twins
@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import Protocol
+
+from reconciler.unit import Unit, UnitState
 
 
 class Store(Protocol):
@@ -41,3 +43,37 @@ class Scripts(Protocol):
         self, app: str, app_dir: Path, script: str, params: dict[str, str], *,
         run: str, required: bool = False,
     ) -> bool: ...
+
+    def check(
+        self, app: str, app_dir: Path, argv: list[str], params: dict[str, str], *,
+        timeout: float,
+    ) -> tuple[bool, str]:
+        """Run a health check command; (exit 0 within `timeout`, a short reason)."""
+        ...
+
+
+class Services(Protocol):
+    """A service manager (adapters/services/): runs units and says what state they are in.
+
+    `install` writes or replaces a unit's definition without starting it; `uninstall` stops
+    it and removes the definition (both idempotent). `start`, `stop` and `restart` act now
+    and raise ServiceError when the manager refuses; `state` never raises for a unit it does
+    not know (`UnitState.known` is False). `logs` returns the unit's last `lines` lines of
+    output. `kind` names the backend in status and plans.
+    """
+
+    kind: str
+
+    def install(self, unit: Unit) -> None: ...
+
+    def uninstall(self, name: str) -> None: ...
+
+    def start(self, name: str) -> None: ...
+
+    def stop(self, name: str) -> None: ...
+
+    def restart(self, name: str) -> None: ...
+
+    def state(self, name: str) -> UnitState: ...
+
+    def logs(self, name: str, lines: int = 20) -> list[str]: ...

@@ -1,0 +1,430 @@
+"""The `Services` port on a supervisord that lpam starts for its root (developer machines,
+CI, vehicles without systemd). The daemon itself — launch, socket, lock, shutdown — is
+supervisor_daemon.py; the files lpam writes for it are supervisor_conf.py's.
+
+Questions (`state`, `logs`) and `stop`/`uninstall` never start supervisord; `install` and
+`start` do. A unit lpam installed while supervisord is down (after a reboot) is known and
+inactive: its file is in `programs/`, and the next `start` loads it.
+
+Definitions are applied as `supervisorctl update` does (reloadConfig, then add or replace
+the process group), one unit at a time. A changed definition of a unit that is not
+running takes effect at once; a running unit keeps running its old definition until its
+next `start` or `restart`, which apply pending changes first (the executor stops an app
+before it installs a new one, so this is the rare case of `configure`).
+
+`start` waits for supervisord's verdict (`startsecs=1`): it returns once the program has
+run for a second, and also when the program exited at once (like `systemctl start` of a
+simple service: the state says so — activating while supervisord retries, then failed);
+it raises when the program cannot be run at all (not found, not executable). supervisord
+polls its children once a second, so a program that exits at once is sometimes taken for
+one that ran past `startsecs`; it is then restarted rather than retried, and ends failed
+later or keeps restarting — never reported active, so the health check fails it either way.
+
+Restarts: supervisord does not count them, so lpam does. `start` notes where
+supervisord's log ended; `state` counts the program's `spawned:` lines after that point
+(following one rotation of the log); every spawn but the first is a restart. After a
+reboot (the note lives in `/run`) the count starts again at 0.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import pwd
+import stat
+import time
+import xmlrpc.client
+from dataclasses import replace
+from pathlib import Path
+
+from supervisor.xmlrpc import Faults  # type: ignore[import-untyped]
+
+from reconciler.adapters.services import supervisor_conf
+from reconciler.adapters.services.supervisor_daemon import (
+    CALL_TIMEOUT,
+    POLL,
+    Client,
+    Down,
+    connect,
+    ensure,
+    shutdown,
+)
+from reconciler.atomic import fsync_dir, write_atomic
+from reconciler.errors import ServiceError
+from reconciler.layout import Layout
+from reconciler.unit import Activity, Unit, UnitState, check_unit_name
+
+__all__ = ["SupervisorServices", "check_user", "shutdown", "tail"]
+
+READ_LIMIT = 1024 * 1024  # bytes of a log read for `logs` or for counting restarts
+
+BAD_NAME: int = Faults.BAD_NAME
+NO_FILE: int = Faults.NO_FILE
+NOT_EXECUTABLE: int = Faults.NOT_EXECUTABLE
+ABNORMAL_TERMINATION: int = Faults.ABNORMAL_TERMINATION
+ALREADY_STARTED: int = Faults.ALREADY_STARTED
+NOT_RUNNING: int = Faults.NOT_RUNNING
+ALREADY_ADDED: int = Faults.ALREADY_ADDED
+STILL_RUNNING: int = Faults.STILL_RUNNING
+CANT_REREAD: int = Faults.CANT_REREAD
+SPAWN_ERROR: int = Faults.SPAWN_ERROR
+EXITED_AT_ONCE = "Exited too quickly"  # supervisord's spawnerr for an exit within startsecs
+
+ACTIVITY: dict[str, Activity] = {
+    "RUNNING": "active", "STARTING": "activating", "BACKOFF": "activating",
+    "STOPPING": "deactivating", "STOPPED": "inactive", "EXITED": "inactive",
+    "FATAL": "failed", "UNKNOWN": "unknown",
+}
+_ALIVE = frozenset({"STARTING", "RUNNING", "BACKOFF", "STOPPING"})
+
+
+def _program(name: str) -> str:
+    try:
+        return check_unit_name(name)
+    except ValueError as exc:
+        raise ServiceError(f"unit {name!r}: {exc}") from None
+
+
+class SupervisorServices:
+    """The `Services` port on the supervisord of one root (see the module docstring)."""
+
+    kind = "supervisor"
+
+    def __init__(self, layout: Layout) -> None:
+        self.layout = layout
+
+    # -- definitions --------------------------------------------------------------
+
+    def install(self, unit: Unit) -> None:
+        name = _program(unit.name)
+        log = Path(os.path.abspath(unit.log or self.layout.app_logs / f"{name}.log"))
+        directory = Path(os.path.abspath(unit.directory))
+        text = supervisor_conf.program(replace(unit, directory=directory), name=name, log=log)
+        if unit.user is not None:
+            _user_exists(name, unit.user)
+        client = self._ensure()
+        if unit.user is not None:
+            check_user(name, unit.user, manager_uid=os.stat(client.path).st_uid)
+        log.parent.mkdir(parents=True, exist_ok=True)
+        path = self.layout.supervisor_program(name)
+        try:
+            old: bytes | None = path.read_bytes()
+        except FileNotFoundError:
+            old = None
+        write_atomic(path, text)
+        try:
+            diff = _reload(client)
+        except ServiceError:
+            # Never leave a file that stops supervisord from reading its configuration.
+            if old is None:
+                path.unlink(missing_ok=True)
+            else:
+                write_atomic(path, old)
+            raise
+        self._update(client, name, diff)
+
+    def uninstall(self, name: str) -> None:
+        program = _program(name)
+        client = self._connect()
+        if client is not None:
+            self._stop(client, program)
+        path = self.layout.supervisor_program(program)
+        if path.exists():
+            path.unlink()
+            fsync_dir(path.parent)
+        (self.layout.supervisor_starts / program).unlink(missing_ok=True)
+        if client is not None:
+            try:
+                client.call("removeProcessGroup", program)
+            except xmlrpc.client.Fault as exc:
+                if exc.faultCode != BAD_NAME:
+                    raise _failed(program, "removing", exc) from None
+            except Down:
+                pass
+
+    # -- actions ------------------------------------------------------------------
+
+    def start(self, name: str) -> None:
+        program = _program(name)
+        client = self._ensure()
+        try:
+            self._update(client, program, _reload(client))
+            state = self._settled(client, program)
+            if state is None:
+                raise ServiceError(f"unit {program} is not installed in supervisord",
+                                   hint="install it first (`lpam apply`)")
+            if state in ("STARTING", "RUNNING", "BACKOFF"):
+                return  # already started (BACKOFF: supervisord is retrying it)
+            self._note_start(program)
+            client.call("startProcess", program, True, timeout=CALL_TIMEOUT + 30)
+        except xmlrpc.client.Fault as exc:
+            if exc.faultCode in (ALREADY_STARTED, ABNORMAL_TERMINATION):
+                return  # ABNORMAL: it ran and exited at once; `state` tells the rest
+            if exc.faultCode == SPAWN_ERROR:
+                # Also "it exited at once" (spawnerr says so, or is already cleared by
+                # the next attempt); a fork that failed says why.
+                why = self._spawn_error(client, program)
+                if not why or why.startswith(EXITED_AT_ONCE):
+                    return
+                raise _failed(program, "starting", exc, why) from None
+            raise _failed(program, "starting", exc) from None
+        except Down:
+            raise ServiceError(f"unit {program}: supervisord stopped while starting it",
+                               hint=f"see {self.layout.supervisor_log}") from None
+
+    def stop(self, name: str) -> None:
+        """Stop it if it runs. A unit supervisord does not know is not running under it,
+        which is all `stop` promises, so that is not an error."""
+        program = _program(name)
+        client = self._connect()
+        if client is not None:
+            self._stop(client, program)
+
+    def restart(self, name: str) -> None:
+        self.stop(name)
+        self.start(name)
+
+    # -- questions ----------------------------------------------------------------
+
+    def state(self, name: str) -> UnitState:
+        try:
+            program = check_unit_name(name)
+        except ValueError:
+            return UnitState(name=name, known=False)
+        client = self._connect()
+        try:
+            info = None if client is None else client.call("getProcessInfo", program)
+        except xmlrpc.client.Fault as exc:
+            if exc.faultCode != BAD_NAME:
+                raise _failed(program, "asking the state of", exc) from None
+            info = None
+        except Down:
+            info = None
+        if info is None:
+            # Installed by lpam but not loaded (supervisord down after a reboot): a
+            # stopped unit that `start` will bring up, not an unknown one.
+            if self.layout.supervisor_program(program).is_file():
+                return UnitState(name=name, known=True, active="inactive", sub="stopped")
+            return UnitState(name=name, known=False)
+        statename = str(info.get("statename", "UNKNOWN"))
+        pid = int(info.get("pid") or 0)
+        return UnitState(
+            name=name, known=True, active=ACTIVITY.get(statename, "unknown"),
+            sub=statename.lower(), restarts=self._restarts(program),
+            pid=pid if pid > 0 else None,
+        )
+
+    def logs(self, name: str, lines: int = 20) -> list[str]:
+        try:
+            program = check_unit_name(name)
+        except ValueError:
+            return []
+        log = self._setting(program, "stdout_logfile")
+        path = Path(log) if log else self.layout.app_logs / f"{program}.log"
+        return tail(path, max(lines, 0))
+
+    # -- inside -------------------------------------------------------------------
+
+    def _connect(self) -> Client | None:
+        return connect(self.layout)
+
+    def _ensure(self) -> Client:
+        return ensure(self.layout)
+
+    def _setting(self, program: str, key: str) -> str | None:
+        try:
+            text = self.layout.supervisor_program(program).read_text(errors="replace")
+        except OSError:
+            return None
+        return supervisor_conf.settings(text).get(key)
+
+    def _update(self, client: Client, program: str,
+                diff: tuple[list[str], list[str], list[str]]) -> None:
+        """Load this unit's current definition, as `supervisorctl update` does for all."""
+        added, changed, removed = diff
+        try:
+            if program in added:
+                client.call("addProcessGroup", program)
+            elif program in changed or program in removed:
+                if self._statename(client, program) in _ALIVE:
+                    return  # running: its new definition waits for its next start
+                client.call("removeProcessGroup", program)
+                if program in changed:
+                    client.call("addProcessGroup", program)
+        except xmlrpc.client.Fault as exc:
+            if exc.faultCode not in (ALREADY_ADDED, BAD_NAME, STILL_RUNNING):
+                raise _failed(program, "loading", exc) from None
+
+    def _statename(self, client: Client, program: str) -> str | None:
+        try:
+            return str(client.call("getProcessInfo", program)["statename"])
+        except xmlrpc.client.Fault as exc:
+            if exc.faultCode == BAD_NAME:
+                return None
+            raise
+
+    def _spawn_error(self, client: Client, program: str) -> str:
+        with contextlib.suppress(Down, xmlrpc.client.Fault):
+            return str(client.call("getProcessInfo", program).get("spawnerr") or "")
+        return ""
+
+    def _settled(self, client: Client, program: str) -> str | None:
+        """Its state once any stop under way has finished (bounded by its stop time)."""
+        deadline = time.monotonic() + self._stop_seconds(program) + 10
+        while True:
+            state = self._statename(client, program)
+            if state != "STOPPING" or time.monotonic() >= deadline:
+                return state
+            time.sleep(POLL)
+
+    def _stop_seconds(self, program: str) -> float:
+        value = self._setting(program, "stopwaitsecs")
+        return float(value) if value and value.isdigit() else 10.0
+
+    def _stop(self, client: Client, program: str) -> None:
+        try:
+            client.call("stopProcess", program, True,
+                        timeout=self._stop_seconds(program) + 30)
+        except xmlrpc.client.Fault as exc:
+            if exc.faultCode == BAD_NAME:
+                return
+            if exc.faultCode != NOT_RUNNING:
+                raise _failed(program, "stopping", exc) from None
+        except Down:
+            return  # supervisord went away, and its programs with it
+        with contextlib.suppress(Down):
+            if self._settled(client, program) == "STOPPING":
+                raise ServiceError(f"unit {program} is still stopping",
+                                   hint=f"see {self.layout.supervisor_log}")
+
+    def _note_start(self, program: str) -> None:
+        try:
+            info = os.stat(self.layout.supervisor_log)
+            mark = f"{info.st_ino} {info.st_size}\n"
+        except FileNotFoundError:
+            mark = "0 0\n"
+        write_atomic(self.layout.supervisor_starts / program, mark)
+
+    def _restarts(self, program: str) -> int:
+        try:
+            ino_text, offset_text = (self.layout.supervisor_starts / program).read_text().split()
+            ino, offset = int(ino_text), int(offset_text)
+        except (OSError, ValueError):
+            return 0
+        log = self.layout.supervisor_log
+        text = ""
+        try:
+            current = os.stat(log)
+        except FileNotFoundError:
+            return 0
+        if current.st_ino == ino and current.st_size >= offset:
+            text = _read_from(log, offset)
+        else:
+            rotated = log.with_name(log.name + ".1")
+            with contextlib.suppress(OSError):
+                if os.stat(rotated).st_ino == ino:
+                    text = _read_from(rotated, offset)
+            text += _read_from(log, 0)
+        return max(text.count(f"spawned: '{program}' with pid ") - 1, 0)
+
+
+def _reload(client: Client) -> tuple[list[str], list[str], list[str]]:
+    try:
+        added, changed, removed = client.call("reloadConfig")[0]
+    except xmlrpc.client.Fault as exc:
+        if exc.faultCode == CANT_REREAD:
+            raise ServiceError(f"supervisord cannot read its configuration: "
+                               f"{exc.faultString}",
+                               hint="fix or remove the file it names") from None
+        raise ServiceError(f"supervisord refused to reload: {exc.faultString}") from None
+    except Down:
+        raise ServiceError("supervisord stopped while lpam talked to it") from None
+    return list(added), list(changed), list(removed)
+
+
+def _failed(program: str, doing: str, exc: xmlrpc.client.Fault, why: str = "") \
+        -> ServiceError:
+    code = exc.faultCode
+    if code == SPAWN_ERROR:
+        return ServiceError(f"unit {program} could not be started: {why or exc.faultString}",
+                            hint="see `lpam logs` and the supervisord log under var/log/lpam")
+    if code == BAD_NAME:
+        return ServiceError(f"unit {program} is not installed in supervisord",
+                            hint="install it first (`lpam apply`)")
+    if code in (NO_FILE, NOT_EXECUTABLE):
+        detail = exc.faultString.split(":", 1)[-1].strip()
+        return ServiceError(f"unit {program} cannot be started: {detail}",
+                            hint="check the app's command and that its program is executable")
+    return ServiceError(f"{doing} unit {program} failed: supervisord says {exc.faultString}",
+                        hint="see `lpam logs` and the supervisord log under var/log/lpam")
+
+
+def _user_exists(unit: str, user: str) -> None:
+    try:
+        pwd.getpwuid(int(user)) if user.isdigit() else pwd.getpwnam(user)
+    except KeyError:
+        raise ServiceError(f"unit {unit}: user {user!r} does not exist on this machine",
+                           hint="create the user or change the app's `user`") from None
+
+
+def check_user(unit: str, user: str, *, manager_uid: int) -> None:
+    """supervisord switches to another user only when it runs as root."""
+    _user_exists(unit, user)
+    uid = int(user) if user.isdigit() else pwd.getpwnam(user).pw_uid
+    if manager_uid != 0 and uid != manager_uid:
+        raise ServiceError(
+            f"unit {unit}: cannot run as user {user!r}: supervisord runs as uid "
+            f"{manager_uid}, not root, and only root can switch users",
+            hint="run lpam (and so its supervisord) as root, or drop the app's `user`",
+        )
+
+
+def _open_regular(path: Path) -> int | None:
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | os.O_NOCTTY)
+    except OSError:
+        return None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        return None
+    return fd
+
+
+def _read_from(path: Path, offset: int) -> str:
+    """The text of `path` from `offset` on, at most READ_LIMIT bytes (the last ones)."""
+    fd = _open_regular(path)
+    if fd is None:
+        return ""
+    try:
+        size = os.fstat(fd).st_size
+        start = max(offset, size - READ_LIMIT, 0)
+        return os.pread(fd, size - start, start).decode(errors="replace") if size > start \
+            else ""
+    finally:
+        os.close(fd)
+
+
+def tail(path: Path, lines: int) -> list[str]:
+    """The last `lines` lines of `path`, read backwards from its end (at most READ_LIMIT
+    bytes), without their line ends. A missing file has no lines."""
+    fd = _open_regular(path)
+    if fd is None or lines == 0:
+        if fd is not None:
+            os.close(fd)
+        return []
+    try:
+        end = os.fstat(fd).st_size
+        data = b""
+        start = end
+        while start > 0 and data.count(b"\n") <= lines and end - start < READ_LIMIT:
+            step = min(64 * 1024, start, READ_LIMIT - (end - start))
+            start -= step
+            data = os.pread(fd, step, start) + data
+    finally:
+        os.close(fd)
+    parts = data.decode(errors="replace").split("\n")
+    if parts and parts[-1] == "":
+        parts.pop()
+    if start > 0 and parts:
+        parts.pop(0)  # begun mid-line
+    return [p.removesuffix("\r") for p in parts[-lines:]]
