@@ -27,15 +27,24 @@ from reconciler.layout import Layout
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
     from reconciler.adapters.git import GitStore
     from reconciler.execution.lock import Lock
+    from reconciler.execution.ports import Services
+    from reconciler.execution.steps import Context
     from reconciler.observe.targets import Fetch
     from schemas.desired import DesiredState
     from schemas.plan import Plan
+    from schemas.record import StateRecord
 
 EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
 NETWORK_TIMEOUT = ("--network-timeout",)
 NETWORK_TIMEOUT_OPTIONS: dict[str, Any] = {
     "type": float, "default": 60.0, "metavar": "SECONDS",
     "help": "give up on a git server that does not answer for this long (default 60)",
+}
+SERVICES = ("--services",)
+SERVICES_OPTIONS: dict[str, Any] = {
+    "choices": ("systemd", "supervisor"), "default": None,
+    "help": "service manager that runs the app (default: $LPAM_SERVICES, else systemd "
+    "where it runs, else supervisord)",
 }
 LOCK_TIMEOUT = ("--lock-timeout",)
 LOCK_TIMEOUT_OPTIONS: dict[str, Any] = {
@@ -71,6 +80,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="use no network: plan from what the last fetch brought")
     plan.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
     plan.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
+    plan.add_argument(*SERVICES, **SERVICES_OPTIONS)
 
     apply = sub.add_parser("apply", parents=[common], help="make the machine match")
     apply.add_argument("planfile", nargs="?", type=Path, help="a plan saved by plan --out")
@@ -80,9 +90,47 @@ def _parser() -> argparse.ArgumentParser:
     apply.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
                        help="kill an app script running longer than this (default 600)")
     apply.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
+    apply.add_argument(*SERVICES, **SERVICES_OPTIONS)
+    apply.add_argument("--release", action="store_true",
+                       help="end a rollback's hold and apply the desired state again")
 
     status = sub.add_parser("status", parents=[common], help="show repositories and apps")
     status.add_argument("--json", action="store_true")
+    status.add_argument(*SERVICES, **SERVICES_OPTIONS)
+
+    for action, what in (("start", "start the installed app now (ends an operator stop)"),
+                         ("stop", "stop the installed app; it stays stopped until `lpam "
+                          "start` or a change of the desired state"),
+                         ("restart", "stop and start the installed app")):
+        op = sub.add_parser(action, parents=[common], help=what)
+        op.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
+        op.add_argument(*SERVICES, **SERVICES_OPTIONS)
+        op.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
+                        help="kill an app script running longer than this (default 600)")
+
+    logs = sub.add_parser("logs", parents=[common], help="the installed app's recent output")
+    logs.add_argument("-n", "--lines", type=int, default=50, help="how many lines (default 50)")
+    logs.add_argument("-f", "--follow", action="store_true", help="keep printing new output")
+    logs.add_argument(*SERVICES, **SERVICES_OPTIONS)
+
+    history = sub.add_parser("history", parents=[common],
+                             help="the generations made current, newest last")
+    history.add_argument("--json", action="store_true")
+
+    rollback = sub.add_parser("rollback", parents=[common],
+                              help="make the previous good generation current again, offline")
+    rollback.add_argument("-f", "--file", type=Path,
+                          help="desired state the rollback holds against (default: under --root)")
+    rollback.add_argument("--yes", action="store_true", help="roll back without asking")
+    rollback.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
+    rollback.add_argument(*SERVICES, **SERVICES_OPTIONS)
+    rollback.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
+                          help="kill an app script running longer than this (default 600)")
+
+    services = sub.add_parser("services", parents=[common],
+                              help="the service manager lpam started (supervisord)")
+    services.add_argument("action", choices=("shutdown",),
+                          help="shutdown: stop the supervisord lpam started for this root")
 
     validate = sub.add_parser("validate", parents=[common],
                               help="check a desired state, a catalog or an app repository")
@@ -164,25 +212,49 @@ def _desired_path(args: argparse.Namespace, layout: Layout) -> Path:
     return Path(args.file) if args.file else layout.desired_state
 
 
+def _services(args: argparse.Namespace, layout: Layout) -> Services:
+    """The service manager: --services, else $LPAM_SERVICES, else systemd where it runs."""
+    from reconciler.adapters.services.choice import choose
+
+    kind = choose(override=getattr(args, "services", None), env=os.environ)
+    if kind == "systemd":
+        from reconciler.adapters.services.systemd import SystemdServices
+
+        return SystemdServices(layout)
+    from reconciler.adapters.services.supervisor import SupervisorServices
+
+    return SupervisorServices(layout)
+
+
 def _prepare(
     layout: Layout, path: Path, desired: DesiredState, *, fetch: Fetch, timeout: float,
-    busy: str | None = None,
+    services: Services, busy: str | None = None,
 ) -> tuple[GitStore, Plan]:
     """Resolve the desired state, observe the machine and plan; `path` anchors relative URLs.
     `busy` is what holds the lock when the caller planned beside a running apply."""
     from reconciler.adapters.git import GitStore
+    from reconciler.legacy.appdir import libpanda_user
     from reconciler.observe.machine import observe
     from reconciler.observe.targets import Fetch, resolve
+    from reconciler.planning.model import Observed, Targets
     from reconciler.planning.plan import make_plan
+    from reconciler.state import read_record
 
     store = GitStore(layout, timeout=timeout)
-    targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch)
-    observed = observe(layout, store, targets)
+    record = read_record(layout)
+    hold = _hold(record, desired)
+    if hold is not None:  # a rollback holds: nothing to resolve, no network needed
+        plan = make_plan(Targets((), None), Observed(record=record, repositories={}),
+                         now=now(), lpam_version=__version__, hold=hold)
+        return store, plan
+    targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
+                      default_user=libpanda_user(layout))
+    observed = observe(layout, store, targets, services)
     if busy is not None:
         print(f"note: an apply is in progress ({busy}); this plan shows the machine as it "
               "stands now, part-way through it", file=sys.stderr)
     plan = make_plan(targets, observed, now=now(), lpam_version=__version__,
-                     offline=fetch is Fetch.OFFLINE)
+                     offline=fetch is Fetch.OFFLINE, hold=hold)
     if busy is None and observed.interrupted:
         cut = ", ".join(observed.interrupted)
         # The step's script may have finished after lpam died (its guard wrote the exit
@@ -191,6 +263,17 @@ def _prepare(
                 else "its script finished since, so nothing is left to redo")
         print(f"note: the last apply was interrupted during {cut}; {rest}", file=sys.stderr)
     return store, plan
+
+
+def _hold(record: StateRecord, desired: DesiredState) -> str | None:
+    """The reason the machine is held by a rollback, while the desired state is unchanged."""
+    from reconciler.workflow.operate import desired_fingerprint
+
+    hold = record.hold
+    if hold is None or hold.desired != desired_fingerprint(desired):
+        return None
+    return (f"held by `lpam rollback` at generation {hold.generation}: nothing is proposed "
+            "until the desired state changes (`lpam apply --release` ends the hold)")
 
 
 def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
@@ -207,13 +290,14 @@ def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
     if args.offline and args.out is not None:
         raise LpamError("an --offline plan cannot be saved: it may hold values known only "
                         "after a fetch", hint="drop --offline to save an exact plan")
+    services = _services(args, layout)
     if args.offline:
-        _, plan = _prepare(layout, path, desired, fetch=Fetch.OFFLINE,
+        _, plan = _prepare(layout, path, desired, fetch=Fetch.OFFLINE, services=services,
                            timeout=args.network_timeout, busy=holder(layout))
         return _show_plan(args, plan)
     try:
         with apply_lock(layout, timeout=args.lock_timeout):
-            _, plan = _prepare(layout, path, desired, fetch=Fetch.OBJECTS,
+            _, plan = _prepare(layout, path, desired, fetch=Fetch.OBJECTS, services=services,
                                timeout=args.network_timeout)
             if args.out is not None:
                 from reconciler.atomic import write_atomic
@@ -223,7 +307,7 @@ def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
         busy = holder(layout)
         if args.out is not None or busy is None:
             raise
-        _, plan = _prepare(layout, path, desired, fetch=Fetch.OFFLINE,
+        _, plan = _prepare(layout, path, desired, fetch=Fetch.OFFLINE, services=services,
                            timeout=args.network_timeout, busy=busy)
     return _show_plan(args, plan)
 
@@ -256,6 +340,13 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
     path = _desired_path(args, layout)
     desired = load_desired(path)
     with apply_lock(layout, timeout=args.lock_timeout) as lock:
+        if args.release:
+            from reconciler.state import read_record, write_record
+
+            record = read_record(layout)
+            if record.hold is not None:
+                write_record(layout, record.model_copy(update={"hold": None}))
+                print(f"Released the hold on generation {record.hold.generation}.")
         return _apply_desired(args, layout, path, desired, lock)
 
 
@@ -276,7 +367,7 @@ def _apply_desired(
     from reconciler.planning.render import render
 
     store, plan = _prepare(layout, path, desired, fetch=Fetch.CHECKOUT,
-                           timeout=args.network_timeout)
+                           services=_services(args, layout), timeout=args.network_timeout)
     print(render(plan))
     if not plan.steps:
         return EXIT_OK
@@ -292,34 +383,145 @@ def _apply_desired(
 def _execute(
     args: argparse.Namespace, layout: Layout, store: GitStore, plan: Plan, lock: Lock
 ) -> int:
-    from reconciler.adapters.scripts import ScriptRunner
     from reconciler.execution.executor import execute
-    from reconciler.execution.steps import Context
-    from reconciler.state import read_record
 
-    started = now()
-    log = layout.logs / f"apply-{started.strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
-    ctx = Context(
-        layout=layout, store=store, clock=now, record=read_record(layout),
-        scripts=ScriptRunner(root=layout.root, log=log, runs=layout.runs,
-                             timeout=args.script_timeout, lock_fd=lock.fd,
-                             note=lock.note),
-    )
+    ctx, log = _context(args, layout, store, lock)
     print()
     execute(plan, ctx, progress=print)
     app = ctx.record.app
     where = f"{app.name} {app.status}" if app else "no app"
+    if app is not None and app.service is not None and app.status == "running":
+        state = ctx.services.state(app.service)
+        where += f" ({state.describe()})" if state.known else \
+            f" (unverified: {state.describe()}; the scripts reported success)"
     print(f"\nApply complete: {len(plan.steps)} steps; {where}. Script output: {log}")
+    return EXIT_OK
+
+
+def _context(args: argparse.Namespace, layout: Layout, store: GitStore,
+             lock: Lock) -> tuple[Context, Path]:
+    from reconciler.adapters.scripts import ScriptRunner
+    from reconciler.execution.steps import Context
+    from reconciler.state import read_record
+
+    started = now()
+    log = layout.logs / f"{args.command}-{started.strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
+    ctx = Context(
+        layout=layout, store=store, clock=now, record=read_record(layout),
+        services=_services(args, layout),
+        scripts=ScriptRunner(root=layout.root, log=log, runs=layout.runs,
+                             timeout=args.script_timeout, lock_fd=lock.fd, note=lock.note),
+    )
+    return ctx, log
+
+
+def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
+    """`lpam start|stop|restart`: on the installed app now, journalled like an apply."""
+    from reconciler.adapters.git import GitStore
+    from reconciler.execution.lock import apply_lock
+    from reconciler.workflow.operate import operate
+
+    with apply_lock(layout, timeout=args.lock_timeout) as lock:
+        ctx, _ = _context(args, layout, GitStore(layout), lock)
+        print(operate(ctx, args.command, progress=print))
+    return EXIT_OK
+
+
+def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
+    import time
+
+    from reconciler.state import read_record
+
+    app = read_record(layout).app
+    if app is None or app.service is None:
+        raise LpamError("no installed app with a unit to show the output of" if app is None
+                        else f"{app.name} names no unit (no `service` file)",
+                        hint="its scripts' output is in <root>/var/log/lpam/apply-*.log")
+    services = _services(args, layout)
+    shown = services.logs(app.service, max(args.lines, 1))
+    for line in shown:
+        print(line)
+    while args.follow:
+        time.sleep(1.0)
+        lines = services.logs(app.service, 200)
+        overlap = _overlap(shown, lines)
+        for line in lines[overlap:]:
+            print(line, flush=True)
+        shown = lines
+    return EXIT_OK
+
+
+def _overlap(before: list[str], after: list[str]) -> int:
+    """How many leading lines of `after` were the end of `before` (what -f already printed)."""
+    for size in range(min(len(before), len(after)), 0, -1):
+        if before[-size:] == after[:size]:
+            return size
+    return 0
+
+
+def cmd_history(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.state import read_record
+
+    record = read_record(layout)
+    if args.json:
+        print(json.dumps([h.model_dump(mode="json") for h in record.history], indent=2))
+        return EXIT_OK
+    if not record.history:
+        print("No history yet: no apply has made an app current.")
+        return EXIT_OK
+    current = record.app
+    for h in record.history:
+        mark = "*" if current is not None and (h.generation, h.params) == (
+            current.generation, current.params) and h.result == "applied" else " "
+        params = " ".join(f"{k}={v}" for k, v in sorted(h.params.items())) or "-"
+        print(f"{mark} {h.time}  {h.app:<20} {h.generation}  {h.repository}@{h.commit[:12]}  "
+              f"{h.result:<11}  {params}")
+    return EXIT_OK
+
+
+def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.adapters.git import GitStore
+    from reconciler.documents import load_desired
+    from reconciler.execution.lock import apply_lock
+    from reconciler.workflow.operate import previous_good, rollback
+
+    path = _desired_path(args, layout)
+    desired = load_desired(path) if path.exists() else None
+    with apply_lock(layout, timeout=args.lock_timeout) as lock:
+        ctx, _ = _context(args, layout, GitStore(layout), lock)
+        entry = previous_good(ctx)
+        print(f"Roll back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}, "
+              f"applied {entry.time})?")
+        if not args.yes:
+            if not sys.stdin.isatty():
+                raise LpamError("rollback needs confirmation",
+                                hint="pass --yes to roll back without asking")
+            if input("Only 'yes' is accepted: ").strip() != "yes":
+                print("Rollback cancelled; nothing was changed.")
+                return EXIT_ERROR
+        print(rollback(ctx, entry, desired, progress=print))
+    return EXIT_OK
+
+
+def cmd_services(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.adapters.services.supervisor import shutdown
+
+    if shutdown(layout):
+        print(f"Stopped the supervisord of {layout.root}; the apps it ran are stopped too.")
+    else:
+        print(f"No supervisord was running for {layout.root}.")
     return EXIT_OK
 
 
 def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler import status
 
+    services = _services(args, layout)
     if args.json:
-        print(json.dumps(status.as_json(layout), indent=2))
+        print(json.dumps(status.as_json(layout, state=services.state, manager=services.kind),
+                         indent=2))
     else:
-        print(status.as_table(layout))
+        print(status.as_table(layout, state=services.state, manager=services.kind))
     return EXIT_OK
 
 
@@ -354,4 +556,11 @@ COMMANDS = {
     "status": cmd_status,
     "validate": cmd_validate,
     "import-lpam": cmd_import,
+    "services": cmd_services,
+    "start": cmd_operate,
+    "stop": cmd_operate,
+    "restart": cmd_operate,
+    "logs": cmd_logs,
+    "history": cmd_history,
+    "rollback": cmd_rollback,
 }

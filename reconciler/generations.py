@@ -24,8 +24,8 @@ from typing import TYPE_CHECKING
 
 from reconciler.atomic import fsync_dir, write_atomic
 from reconciler.errors import ConfigError, StepError
-from reconciler.layout import Layout, is_generation_id
-from reconciler.planning.model import GenerationKey
+from reconciler.layout import Layout, is_generation_id, slug
+from reconciler.planning.model import GenerationKey, app_folder
 from reconciler.reading import KIB, read_bounded
 
 if TYPE_CHECKING:
@@ -46,6 +46,18 @@ class Generation:
     tree: str = ""
     params: dict[str, str] = field(default_factory=dict)
     scripts: tuple[str, ...] | None = None  # None: staged by an lpam that did not record it
+    command: tuple[str, ...] | None = None  # scriptless app: how its unit runs
+    launch: str | None = None
+    service: str | None = None  # the unit whose state says whether it runs
+
+    @property
+    def folder(self) -> str:
+        """Its folder name in LPAM's layout (the app's name when the path is unknown)."""
+        return app_folder(self.path) if self.path else slug(self.app)
+
+    @property
+    def scriptless(self) -> bool:
+        return self.command is not None or self.launch is not None
 
 
 def stage(layout: Layout, store: Store, gen: Generation) -> Path:
@@ -58,7 +70,9 @@ def stage(layout: Layout, store: Store, gen: Generation) -> Path:
         scripts = tuple(s for s in SCRIPTS if os.path.lexists(dest / s))
         body = {"app": gen.app, "generation": gen.generation, "repository": gen.repository,
                 "commit": gen.commit, "path": gen.path, "tree": gen.tree,
-                "params": gen.params, "scripts": list(scripts)}
+                "params": gen.params, "scripts": list(scripts),
+                "command": None if gen.command is None else list(gen.command),
+                "launch": gen.launch, "service": gen.service}
         write_atomic(meta, json.dumps(body, indent=2, sort_keys=True) + "\n")
     return dest
 
@@ -97,12 +111,17 @@ def read_meta(path: Path) -> Generation | None:
         data = json.loads(read_bounded(path, limit=64 * KIB, follow_symlinks=False))
         params = data.get("params") or {}
         scripts = data.get("scripts")
+        command = data.get("command")
+        launch, service = data.get("launch"), data.get("service")
         return Generation(
             app=str(data["app"]), generation=str(data["generation"]),
             repository=str(data.get("repository", "")), commit=str(data.get("commit", "")),
             path=str(data.get("path", "")), tree=str(data.get("tree", "")),
             params={str(k): str(v) for k, v in params.items()},
             scripts=None if scripts is None else tuple(str(s) for s in scripts),
+            command=None if command is None else tuple(str(a) for a in command),
+            launch=None if launch is None else str(launch),
+            service=None if service is None else str(service),
         )
     except (FileNotFoundError, ConfigError, ValueError, KeyError, TypeError, AttributeError,
             RecursionError):

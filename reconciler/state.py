@@ -50,8 +50,7 @@ def read_record(layout: Layout) -> StateRecord:
         data = read_bounded(path, limit=LIMIT, follow_symlinks=False, what="state record",
                             hint=hint)
     except FileNotFoundError:
-        return StateRecord(strays=[Stray(name=g.app, generation=g.generation, params=g.params)
-                                   for g in installed_on_disk(layout)])
+        return StateRecord(strays=found_installed(layout))
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -59,6 +58,24 @@ def read_record(layout: Layout) -> StateRecord:
                           path=path, hint=hint) from None
     record = parse_record(text, path, hint=hint)
     return settle(record, exit_code=lambda run: run_result(layout, run))
+
+
+def found_installed(layout: Layout) -> list[Stray]:
+    """Apps installed on this machine that no record of lpam's knows: generations on disk
+    (the record was lost), and the app LPAM installed on a vehicle that used it. Each may
+    hold the CAN hardware, so each is stopped and uninstalled before any app is installed."""
+    from reconciler.legacy.appdir import lpam_current
+
+    strays = [Stray(name=g.app, generation=g.generation, params=g.params,
+                    service=g.service if g.scriptless else None)
+              for g in installed_on_disk(layout)]
+    legacy = lpam_current(layout)
+    if legacy is not None:
+        strays.append(Stray(name=legacy, generation=LPAM_GENERATION, folder=legacy))
+    return strays
+
+
+LPAM_GENERATION = "lpam"  # what `lpam status` and plans call an app LPAM installed
 
 
 def parse_record(text: str, path: Path, *, hint: str | None = None) -> StateRecord:

@@ -6,6 +6,10 @@ link (`service -> /etc/shadow`, or an app folder linking to `/etc`), and a check
 edited, while a blob is exactly what was committed and a link in git is never followed.
 It never loads the graph stack, and reads nothing it does not show.
 
+Whether the app runs is asked of its service manager (the live state), not taken from the
+record: the record says what lpam last did, the manager what runs now. Where the manager
+cannot know the app's unit, the record's word is shown, marked unverified.
+
 What a repository holds is shown, so it is not trusted: a file too large is left out
 rather than failing the whole answer, and the table replaces control characters (a
 description could otherwise send escape sequences to the operator's terminal).
@@ -13,6 +17,7 @@ description could otherwise send escape sequences to the operator's terminal).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -24,6 +29,7 @@ from reconciler.state import read_record
 from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
 
 if TYPE_CHECKING:
+    from reconciler.unit import UnitState
     from schemas.record import AppRecord, StateRecord
 
 SHOWN_FILES = ("description.txt", "service")  # the scripts are not shown, so not read
@@ -51,6 +57,7 @@ class Row:
     running: bool
     status: str | None  # the installed app's lifecycle (schemas.record.AppStatus), else None
     description: str
+    verified: bool | None = None  # running asked of the service manager (None: not installed)
 
 
 def _folder_files(store: Objects, key: str, commit: str, folder: str) -> dict[str, bytes]:
@@ -67,9 +74,16 @@ def _folder_files(store: Objects, key: str, commit: str, folder: str) -> dict[st
     return files
 
 
+def _running(installed: AppRecord, live: UnitState | None) -> tuple[bool, bool]:
+    """(runs, verified): the manager's answer when it knows the unit, else the record's."""
+    if live is not None and live.known:
+        return live.running, True
+    return installed.running, False
+
+
 def _app_row(
     store: Objects, common: dict[str, str], app: CatalogApp, installed: AppRecord | None,
-    *, key: str, commit: str,
+    *, key: str, commit: str, live: UnitState | None = None,
 ) -> Row:
     """One app's row; the installed app's files come from the commit it was installed from."""
     if installed is not None:
@@ -77,20 +91,28 @@ def _app_row(
     else:
         folder = app.path
     app = with_folder_files(app, _folder_files(store, key, commit, folder))
+    runs, verified = _running(installed, live) if installed is not None else (False, None)
+    status: str | None = None if installed is None else installed.status
+    if installed is not None and installed.held:
+        status = f"{status} (stopped by operator)"
+    service = installed.service if installed is not None and installed.service else None
     return Row(
-        **common, app=app.name, service=app.service or "-", installed=installed is not None,
-        running=installed is not None and installed.running,
-        status=None if installed is None else installed.status, description=app.description,
+        repository=common["repository"], ref=common["ref"], commit=common["commit"],
+        app=app.name, service=service or app.service or "-",
+        installed=installed is not None, running=runs, status=status,
+        description=app.description, verified=verified,
     )
 
 
 def _note(common: dict[str, str], description: str) -> Row:
-    return Row(**common, app="-", service="-", installed=False, running=False, status=None,
+    return Row(repository=common["repository"], ref=common["ref"], commit=common["commit"],
+               app="-", service="-", installed=False, running=False, status=None,
                description=description)
 
 
 def rows(
-    layout: Layout, *, record: StateRecord | None = None, store: Objects | None = None
+    layout: Layout, *, record: StateRecord | None = None, store: Objects | None = None,
+    live: UnitState | None = None,
 ) -> list[Row]:
     """Every app of every recorded repository at its recorded commit, and the installed app
     even when no catalog lists it any more (it is the one that may hold the CAN hardware)."""
@@ -126,13 +148,14 @@ def rows(
             mine = (installed is not None and installed.name == app.name
                     and installed.repository == repo.key)
             table.append(_app_row(store, common, app, installed if mine else None,
-                                  key=repo.key, commit=repo.commit))
+                                  key=repo.key, commit=repo.commit, live=live))
     if installed is not None and not any(r.installed for r in table):
-        table.append(_unlisted(store, record, installed))
+        table.append(_unlisted(store, record, installed, live))
     return table
 
 
-def _unlisted(store: Objects, record: StateRecord, installed: AppRecord) -> Row:
+def _unlisted(store: Objects, record: StateRecord, installed: AppRecord,
+              live: UnitState | None) -> Row:
     """The installed app when the recorded commit's catalog does not list it (an apply
     that moved the repository was cut off, or the catalog changed)."""
     repo = record.repository(installed.repository)
@@ -141,23 +164,42 @@ def _unlisted(store: Objects, record: StateRecord, installed: AppRecord) -> Row:
               "commit": installed.commit[:12]}
     app = CatalogApp(name=installed.name, path=installed.path)
     return _app_row(store, common, app, installed, key=installed.repository,
-                    commit=installed.commit)
+                    commit=installed.commit, live=live)
 
 
-def as_json(layout: Layout, *, store: Objects | None = None) -> dict[str, Any]:
+def _live(record: StateRecord, state: Callable[[str], UnitState] | None) -> UnitState | None:
+    app = record.app
+    if app is None or app.service is None or state is None:
+        return None
+    return state(app.service)
+
+
+def as_json(layout: Layout, *, store: Objects | None = None,
+            state: Callable[[str], UnitState] | None = None,
+            manager: str | None = None) -> dict[str, Any]:
+    """`state` asks the service manager (`manager`) about a unit."""
     record = read_record(layout)  # once: an apply may rewrite it while status runs
     app = record.app
+    live = _live(record, state)
+    runs, verified = _running(app, live) if app is not None else (False, None)
+    last = record.last_apply
     return {
         "app": None if app is None else {
             "name": app.name, "repository": app.repository, "commit": app.commit,
-            "generation": app.generation, "params": app.params, "running": app.running,
-            "status": app.status,
+            "generation": app.generation, "params": app.params, "running": runs,
+            "verified": verified, "status": app.status, "held": app.held,
+            "unit": None if live is None else {
+                "name": live.name, "known": live.known, "active": live.active,
+                "sub": live.sub, "restarts": live.restarts, "pid": live.pid},
+            "command": app.command, "launch": app.launch, "user": app.user,
         },
+        "service_manager": manager,
+        "last_apply": None if last is None else last.model_dump(mode="json"),
         "repositories": [
             {"key": r.key, "url": r.url, "ref": r.ref, "commit": r.commit}
             for r in record.repositories
         ],
-        "apps": [asdict(r) for r in rows(layout, record=record, store=store)],
+        "apps": [asdict(r) for r in rows(layout, record=record, store=store, live=live)],
         "strays": [
             {"name": s.name, "generation": s.generation, "stopped": s.stopped,
              "pending": s.pending}
@@ -178,12 +220,16 @@ def _cell(value: object) -> str:
     return text if len(text) <= CELL_LIMIT else text[: CELL_LIMIT - 3] + "..."
 
 
-def as_table(layout: Layout, *, store: Objects | None = None) -> str:
+def as_table(layout: Layout, *, store: Objects | None = None,
+             state: Callable[[str], UnitState] | None = None,
+             manager: str | None = None) -> str:
     record = read_record(layout)
-    table = rows(layout, record=record, store=store)
+    live = _live(record, state)
+    table = rows(layout, record=record, store=store, live=live)
     strays = [f"Installed without a record: {_cell(s.name)} (generation "
               f"{_cell(s.generation)}); `lpam apply` stops and uninstalls it before "
               "installing any app." for s in record.strays]
+    strays += _footer(record, live, manager)
     if not table:
         return "\n".join(
             ["No app repositories. Write a desired state and run `lpam apply`.", *strays])
@@ -194,3 +240,21 @@ def as_table(layout: Layout, *, store: Objects | None = None) -> str:
     lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)).rstrip()
               for row in cells]
     return "\n".join([*lines, *strays])
+
+
+def _footer(record: StateRecord, live: UnitState | None, manager: str | None) -> list[str]:
+    """The lines under the table: the app's unit as its manager sees it, the last apply."""
+    lines = []
+    if live is not None:
+        how = live.describe() if live.known else \
+            f"{live.describe()}: running is what the app's scripts reported (unverified)"
+        lines.append(f"Service manager: {manager or '?'}; {_printable(how)}")
+    last = record.last_apply
+    if last is not None:
+        why = f": {last.reason}" if last.reason else ""
+        lines.append(f"Last apply: {last.result} at {last.time}{_printable(why)}")
+    return lines
+
+
+def _printable(text: str) -> str:
+    return "".join(c if c.isprintable() else "?" for c in text)

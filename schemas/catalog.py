@@ -14,6 +14,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictStr, field_validator
 
 from schemas.names import check_app_name, check_owner_repo, check_ref
+from schemas.service import Health, check_argv, check_launch
 
 CATALOG_FILE = "libpanda-apps.yaml"
 APP_FILES = ("install.sh", "uninstall.sh", "start.sh", "stop.sh", "description.txt", "service")
@@ -62,11 +63,24 @@ class RawApp(_Strict):
     properties: RawProperties | list[RawFlag] | None = None
     dependencies: list[RawDependency] = Field(default_factory=list)
     ros_repositories: list[RawRosRepository] = Field(default_factory=list)
+    command: list[StrictStr] | None = None
+    launch: StrictStr | None = None
+    health: Health | None = None
 
     @field_validator("name")
     @classmethod
     def _name(cls, value: str) -> str:
         return check_app_name(value)
+
+    @field_validator("command")
+    @classmethod
+    def _command(cls, value: list[str] | None) -> list[str] | None:
+        return None if value is None else check_argv(value)
+
+    @field_validator("launch")
+    @classmethod
+    def _launch(cls, value: str | None) -> str | None:
+        return None if value is None else check_launch(value)
 
     @field_validator("path")
     @classmethod
@@ -100,6 +114,11 @@ class CatalogApp(_Strict):
     apt: list[str] = Field(default_factory=list)
     pip3: list[str] = Field(default_factory=list)
     ros_repositories: list[RosRepository] = Field(default_factory=list)
+    command: list[str] | None = Field(
+        default=None, description="scriptless app: the program lpam runs as a service")
+    launch: str | None = Field(
+        default=None, description="scriptless app: PACKAGE/FILE.launch run with roslaunch")
+    health: Health | None = None
 
 
 class Catalog(_Strict):
@@ -125,6 +144,9 @@ def normalise(raw: RawCatalog) -> Catalog:
     for index, app in enumerate(raw.apps):
         if app.name in seen:
             raise CatalogFault(f"app {app.name!r} is listed twice", ("apps", index, "name"))
+        if app.command is not None and app.launch is not None:
+            raise CatalogFault(f"app {app.name}: give either `command:` or `launch:`, not "
+                               "both", ("apps", index, "launch"))
         seen.add(app.name)
         deps = list(app.dependencies)
         ros = list(app.ros_repositories)
@@ -152,6 +174,9 @@ def normalise(raw: RawCatalog) -> Catalog:
                 ros_repositories=[
                     RosRepository(owner=r.owner, repo=r.repo, ref=r.branch_or_hash) for r in ros
                 ],
+                command=app.command,
+                launch=app.launch,
+                health=app.health,
             )
         )
     return Catalog(apps=apps)

@@ -27,6 +27,7 @@ from schemas.names import (
     check_url,
     repository_key,
 )
+from schemas.service import Health, check_user
 
 CURRENT_VERSION = 1
 PARAM_VALUE_LIMIT = 4096  # an environment variable's value; kernels cap one at 128 KiB
@@ -114,11 +115,21 @@ class AppSpec(BaseModel):
     params: dict[StrictStr, StrictStr] = Field(
         default_factory=dict, description="environment variables given to the app's scripts"
     )
+    user: StrictStr | None = Field(
+        default=None, description="user a scriptless app runs as (default: the libpanda "
+        "user named in /etc/libpanda.d/libpanda_usr, else root)")
+    health: Health | None = Field(
+        default=None, description="overrides the catalog's health check, field by field")
 
     @field_validator("name")
     @classmethod
     def _name(cls, value: str) -> str:
         return check_app_name(value)
+
+    @field_validator("user")
+    @classmethod
+    def _user(cls, value: str | None) -> str | None:
+        return None if value is None else check_user(value)
 
     @field_validator("params")
     @classmethod

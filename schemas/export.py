@@ -21,7 +21,7 @@ from schemas.record import StateRecord
 DOCUMENTS: dict[str, type[BaseModel]] = {
     "desired-state.v1.schema.json": DesiredState,
     "app-catalog.schema.json": RawCatalog,
-    "state-record.v2.schema.json": StateRecord,
+    "state-record.v3.schema.json": StateRecord,
     "plan.v1.schema.json": Plan,
 }
 FOLDER = Path(__file__).resolve().parent / "json"

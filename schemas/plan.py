@@ -57,8 +57,13 @@ class StepKind(StrEnum):
     STOP = "stop"
     UNINSTALL = "uninstall"
     INSTALL = "install"
+    CONFIGURE = "configure"  # new parameters (or user) for the installed generation
     START = "start"
+    VERIFY = "verify"  # the health check of a started app; a failure rolls back
     REMOVE = "remove"
+
+
+ArgValue = str | list[str] | dict[str, str] | None
 
 
 class Step(BaseModel):
@@ -69,7 +74,7 @@ class Step(BaseModel):
     id: str
     kind: StepKind
     phase: Phase
-    args: dict[str, str | dict[str, str] | None]
+    args: dict[str, ArgValue]
     needs: list[str] = Field(default_factory=list)
 
 

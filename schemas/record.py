@@ -13,7 +13,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-CURRENT_VERSION = 2
+CURRENT_VERSION = 3
 
 AppStatus = Literal["installing", "installed", "starting", "running", "stopping", "uninstalling"]
 """Where the installed app's lifecycle stands. The -ing values are written *before* the
@@ -50,10 +50,25 @@ class AppRecord(BaseModel):
         description="id of the script run under way when the status was written; its exit "
         "code lands in var/lib/lpam/runs/<run>.exit when it ends, even if lpam died",
     )
+    service: str | None = Field(
+        default=None, description="the unit whose state says whether the app runs: the "
+        "one lpam wrote (scriptless app) or the one named in the app's `service` file")
+    command: list[str] | None = Field(
+        default=None, description="scriptless app: the program lpam runs as its unit")
+    launch: str | None = Field(
+        default=None, description="scriptless app: the roslaunch file lpam runs as its unit")
+    user: str | None = Field(default=None, description="user a scriptless app runs as")
+    held: bool = Field(
+        default=False, description="stopped by an operator (`lpam stop`): not started again "
+        "until `lpam start` or a change of the desired state")
 
     @property
     def running(self) -> bool:
         return self.status == "running"
+
+    @property
+    def scriptless(self) -> bool:
+        return self.command is not None or self.launch is not None
 
 
 class Stray(BaseModel):
@@ -70,17 +85,67 @@ class Stray(BaseModel):
     pending: Literal["stop", "uninstall"] | None = Field(
         default=None, description="the script under way when the record was written")
     run: str | None = None
+    service: str | None = Field(
+        default=None, description="a unit lpam wrote for it (scriptless app): removed with it")
+    folder: str | None = Field(
+        default=None, description="an app LPAM installed: its folder under "
+        "/etc/libpanda.d/apps, whose own scripts stop and uninstall it")
+
+
+ApplyResult = Literal["applied", "failed", "rolled back"]
+
+
+class LastApply(BaseModel):
+    """How the last apply (or rollback) ended, for `lpam status`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    time: str
+    result: ApplyResult
+    reason: str | None = None
+
+
+class HistoryEntry(BaseModel):
+    """One generation that was made current, newest last (`lpam history`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    generation: str
+    app: str
+    repository: str
+    commit: str
+    path: str
+    tree: str
+    params: dict[str, str] = Field(default_factory=dict)
+    command: list[str] | None = None
+    launch: str | None = None
+    service: str | None = None
+    user: str | None = None
+    time: str
+    result: ApplyResult
+
+
+class Hold(BaseModel):
+    """A rollback holds until the desired state changes (`lpam apply --release` ends it)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    desired: str = Field(description="fingerprint of the desired state that was rolled back")
+    generation: str = Field(description="the generation the rollback returned to")
 
 
 class StateRecord(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    version: Literal[2] = 2
+    version: Literal[3] = 3
     lineage: str | None = None
     serial: int = 0
     repositories: list[RepositoryRecord] = Field(default_factory=list)
     app: AppRecord | None = None
     strays: list[Stray] = Field(default_factory=list)
+    last_apply: LastApply | None = None
+    history: list[HistoryEntry] = Field(default_factory=list)
+    hold: Hold | None = None
 
     def repository(self, key: str) -> RepositoryRecord | None:
         return next((r for r in self.repositories if r.key == key), None)

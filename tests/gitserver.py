@@ -114,6 +114,10 @@ class GitDaemon:
     ) -> None:
         self._stop()
 
+    def stop(self) -> None:
+        """Take the server away (no network from here on); idempotent."""
+        self._stop()
+
     def _stop(self) -> None:
         if self._proc is not None:
             with contextlib.suppress(ProcessLookupError):

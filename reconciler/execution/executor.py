@@ -17,15 +17,20 @@ import uuid
 from collections.abc import Callable
 
 from reconciler import generations
-from reconciler.errors import LpamError, StepError
+from reconciler.errors import HealthError, LpamError, StepError
 from reconciler.execution.journal import Journal
 from reconciler.execution.steps import RUNNERS, Context, prune
 from reconciler.planning.lifecycle import app_steps, target_of
 from schemas.plan import Phase, Plan, Step
-from schemas.record import ACTIVE, AppRecord
+from schemas.record import ApplyResult, AppRecord, HistoryEntry, LastApply
+
+KEEP_GENERATIONS = 3
 
 
-def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None]) -> None:
+def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
+            record_result: bool = True) -> None:
+    """Run `plan`; `record_result` writes how it ended and its generation to the record
+    (an apply's; an operator's stop or start is not an apply)."""
     journal = Journal(ctx.layout, apply_id=str(uuid.uuid4()), plan=plan.fingerprint)
     journal.open(ctx.clock(), warn=progress)
     ctx.save(ctx.record)  # as read: settled, strays adopted — before any exit file is pruned
@@ -36,13 +41,48 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None]) -> Non
         try:
             _journalled(step, step.id, ctx, journal)
         except LpamError as exc:
+            attempted = ctx.record.app
             rolled = _roll_back(step, previous, ctx, journal, progress)
-            raise StepError(
-                f"step {step.id} failed: {exc.message}.{rolled} {_where(step.phase, ctx)}",
+            message = f"step {step.id} failed: {exc.message}.{rolled} {_where(step.phase, ctx)}"
+            back = bool(rolled) and "failed too" not in rolled
+            if record_result:
+                _finish(ctx, "rolled back" if back else "failed", message,
+                        failed=attempted if back else None)
+            error = HealthError if isinstance(exc, HealthError) else StepError
+            raise error(
+                message,
                 hint=exc.hint or "fix the cause and run `lpam apply` again; it resumes here",
+                details=exc.details,
             ) from exc
     journal.close(ctx.clock())
-    prune(ctx)
+    if record_result:
+        _finish(ctx, "applied", None)
+    prune(ctx, keep=KEEP_GENERATIONS)
+
+
+def _finish(ctx: Context, result: ApplyResult, reason: str | None, *,
+            failed: AppRecord | None = None) -> None:
+    """Record how the apply ended, and the generation it made current (history)."""
+    when = ctx.clock().isoformat(timespec="seconds")
+    history = list(ctx.record.history)
+    for app, outcome in ((failed, "rolled back"), (ctx.record.app, "applied")):
+        if app is None or (outcome == "applied" and result != "applied"):
+            continue
+        last = next((h for h in reversed(history) if h.result == "applied"), None)
+        if outcome == "applied" and last is not None and \
+                (last.generation, last.params) == (app.generation, app.params):
+            continue
+        history.append(HistoryEntry(
+            generation=app.generation, app=app.name, repository=app.repository,
+            commit=app.commit, path=app.path, tree=app.tree, params=dict(app.params),
+            command=app.command, launch=app.launch, service=app.service, user=app.user,
+            time=when, result="rolled back" if outcome == "rolled back" else "applied"))
+    ctx.save(ctx.record.model_copy(update={
+        "last_apply": LastApply(time=when, result=result, reason=reason),
+        "history": history[-20:],
+        # an apply of a changed desired state ends a rollback's hold
+        "hold": None if result == "applied" else ctx.record.hold,
+    }))
 
 
 def _journalled(step: Step, label: str, ctx: Context, journal: Journal) -> None:
@@ -63,13 +103,16 @@ def _roll_back(
     if failed.phase is not Phase.CUTOVER:
         return ""
     target = None if previous is None else target_of(previous)
-    start = previous is None or previous.status in ACTIVE
+    # The car must not be left with no app: the previous one is started again unless an
+    # operator had stopped it (after a crash its status may say `installing` though it ran).
+    start = previous is None or not previous.held
     record, app = ctx.record, ctx.record.app
     if app is not None and previous is not None and app.status == "stopping" \
             and app.generation == previous.generation:
         # its stop.sh just failed: the old app is brought back up, not stopped again
         record = record.model_copy(update={"app": app.model_copy(update={"status": "starting"})})
-    steps = app_steps(record, target, generations.present(ctx.layout), start=start)
+    steps = app_steps(record, target, generations.present(ctx.layout), start=start,
+                      verify=False)
     if not steps:
         return ""
     what = f"rolling back to {previous.name}" if previous else "removing the half-installed app"

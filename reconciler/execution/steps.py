@@ -1,5 +1,13 @@
 """What each kind of step does.
 
+An app is a service. A script app runs by its lifecycle scripts, and the unit its
+`service` file names says whether it runs: a script's exit code is not trusted (the field's
+scripts never use `set -e`), so after `start.sh` the app counts as running only when its
+service manager says that unit is active, and after `stop.sh` only as stopped when the
+unit is not. A scriptless app's unit is written by lpam and driven through the manager.
+Either way, every script and unit runs in `/etc/libpanda.d/apps/<folder>`, the link to the
+generation (reconciler/legacy/appdir.py), where the field's scripts expect it.
+
 Repository steps are idempotent on their outcome (a checkout already at its commit is left
 alone). Lifecycle steps write their *intent* to the state record before the script runs
 (`starting` with the run's id) and the outcome after it (`running`): whatever kills lpam in
@@ -11,6 +19,8 @@ once it has certainly ended (the guard holds the apply lock until then).
 
 from __future__ import annotations
 
+import getpass
+import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -19,14 +29,20 @@ from pathlib import Path
 from typing import Literal
 
 from reconciler import generations
-from reconciler.errors import StepError
-from reconciler.execution.ports import Scripts, Store
+from reconciler.errors import HealthError, StepError
+from reconciler.execution.ports import Scripts, Services, Store
 from reconciler.generations import Generation
 from reconciler.layout import Layout
-from reconciler.planning.model import GenerationKey
+from reconciler.legacy import appdir
+from reconciler.planning.model import GenerationKey, app_folder
 from reconciler.state import write_record
+from reconciler.unit import Unit, UnitState, unit_name
 from schemas.plan import Step, StepKind
 from schemas.record import AppRecord, AppStatus, RepositoryRecord, StateRecord, Stray
+
+SETTLE_POLL = 0.25  # seconds between looks at a unit while it settles
+UNIT_WAIT = 10.0  # how long a unit may take to become (in)active after its script ended
+LOG_LINES = 20
 
 
 def new_run() -> str:
@@ -40,9 +56,12 @@ class Context:
     layout: Layout
     store: Store
     scripts: Scripts
+    services: Services
     record: StateRecord
     clock: Callable[[], datetime]
     run_id: Callable[[], str] = field(default=new_run)
+    monotonic: Callable[[], float] = time.monotonic
+    sleep: Callable[[float], None] = time.sleep
 
     def save(self, record: StateRecord) -> None:
         self.record = write_record(self.layout, record)
@@ -85,11 +104,27 @@ def remove(step: Step, ctx: Context) -> None:
     ctx.save(ctx.record.model_copy(update={"repositories": others}))
 
 
+def _optional(step: Step, name: str) -> str | None:
+    value = step.args.get(name)
+    return value if isinstance(value, str) else None
+
+
+def _argv(step: Step, name: str) -> tuple[str, ...] | None:
+    value = step.args.get(name)
+    return tuple(value) if isinstance(value, list) else None
+
+
 def _wanted(step: Step) -> Generation:
+    command, launch = _argv(step, "command"), _optional(step, "launch")
+    path = _arg(step, "path")
+    service = _optional(step, "service")
+    if command is not None or launch is not None:
+        service = unit_name(app_folder(path))
     return Generation(
         app=_arg(step, "app"), generation=_arg(step, "generation"),
         repository=_arg(step, "repository"), commit=_arg(step, "commit"),
-        path=_arg(step, "path"), tree=_arg(step, "tree"), params=_params(step),
+        path=path, tree=_arg(step, "tree"), params=_params(step),
+        command=command, launch=launch, service=service,
     )
 
 
@@ -103,11 +138,18 @@ def _generation(ctx: Context, app: str, generation: str, fallback: Generation) -
     return meta if meta is not None else fallback
 
 
+def _place(ctx: Context, gen: Generation) -> Path:
+    """The generation's folder (restored from git first if it went missing), reachable at
+    `/etc/libpanda.d/apps/<folder>`: that path, where the field's scripts expect it."""
+    folder = generations.ensure(ctx.layout, ctx.store, gen)
+    return appdir.point(ctx.layout, gen.folder, folder)
+
+
 def _run(ctx: Context, gen: Generation, script: str, params: dict[str, str], run: str) -> None:
-    """Run one script of `gen`, its folder restored from git first if it went missing."""
-    folder: Path = generations.ensure(ctx.layout, ctx.store, gen)
+    """Run one script of `gen` in its place."""
+    place = _place(ctx, gen)
     required = gen.scripts is not None and script in gen.scripts
-    ctx.scripts.run(gen.app, folder, script, params, run=run, required=required)
+    ctx.scripts.run(gen.app, place, script, params, run=run, required=required)
 
 
 def _installed(step: Step, ctx: Context) -> AppRecord:
@@ -120,16 +162,115 @@ def _installed(step: Step, ctx: Context) -> AppRecord:
     return app
 
 
-def _lifecycle(ctx: Context, app: AppRecord, script: str, during: AppStatus,
-               after: AppStatus | None) -> None:
-    """Intent, script, outcome: the record never claims more than is known."""
-    run = ctx.run_id()
-    ctx.save_app(app.model_copy(update={"status": during, "run": run}))
+def _meta(ctx: Context, app: AppRecord) -> Generation:
     fallback = Generation(app=app.name, generation=app.generation, repository=app.repository,
-                          commit=app.commit, path=app.path, tree=app.tree, params=app.params)
-    _run(ctx, _generation(ctx, app.name, app.generation, fallback), script, app.params, run)
+                          commit=app.commit, path=app.path, tree=app.tree, params=app.params,
+                          command=None if app.command is None else tuple(app.command),
+                          launch=app.launch, service=app.service)
+    return _generation(ctx, app.name, app.generation, fallback)
+
+
+What = Literal["install", "start", "stop", "uninstall"]
+
+
+def _lifecycle(ctx: Context, app: AppRecord, what: What, during: AppStatus,
+               after: AppStatus | None) -> None:
+    """Intent, work, outcome: the record never claims more than is known. The work is the
+    app's script (then the unit it names is checked), or the unit lpam wrote for it."""
+    run = ctx.run_id() if not app.scriptless else None
+    ctx.save_app(app.model_copy(update={"status": during, "run": run}))
+    gen = _meta(ctx, app)
+    if app.scriptless:
+        _unit_work(ctx, app, gen, what)
+    else:
+        assert run is not None
+        _run(ctx, gen, f"{what}.sh", app.params, run)
+        if app.service is not None and what in ("start", "stop"):
+            try:
+                _await(ctx, app.name, app.service, active=what == "start",
+                       script=f"{what}.sh")
+            except StepError:
+                # The script ended with 0, but the unit says it did not do its work: the
+                # record must not be settled from that exit code (reconciler/state.py).
+                ctx.save_app(app.model_copy(update={"status": during, "run": None}))
+                raise
     ctx.save_app(None if after is None else
                  app.model_copy(update={"status": after, "run": None}))
+
+
+def _unit_work(ctx: Context, app: AppRecord, gen: Generation, what: What) -> None:
+    """The lifecycle of a unit lpam writes: install writes it, uninstall removes it."""
+    name = app.service or unit_name(gen.folder)
+    if what == "install":
+        ctx.services.install(_unit(ctx, app, _place(ctx, gen)))
+    elif what == "start":
+        ctx.services.start(name)
+        _await(ctx, app.name, name, active=True, script=None)
+    elif what == "stop":
+        ctx.services.stop(name)
+    else:
+        ctx.services.uninstall(name)
+
+
+def _unit(ctx: Context, app: AppRecord, place: Path) -> Unit:
+    """The unit of a scriptless app: its program found in its folder or on PATH, its
+    parameters as its environment, run as its user (no switch when that is lpam's own)."""
+    if app.command is not None:
+        argv = list(app.command)
+        if "/" in argv[0] or (place / argv[0]).is_file():
+            argv[0] = str(place / argv[0])
+    else:
+        assert app.launch is not None
+        package, launch_file = app.launch.split("/", 1)
+        argv = ["roslaunch", package, launch_file]
+    env = dict(app.params)
+    env.update(LPAM_ROOT=str(ctx.layout.root), LPAM_APP=app.name, LPAM_APP_DIR=str(place))
+    user = None if app.user in (None, getpass.getuser()) else app.user
+    folder = app_folder(app.path)
+    return Unit(name=unit_name(folder), argv=tuple(argv), directory=place, environment=env,
+                user=user, description=f"lpam app {app.name} ({app.generation})",
+                log=ctx.layout.logs / "apps" / f"{folder}.log")
+
+
+def _await(ctx: Context, app: str, unit: str, *, active: bool, script: str | None) -> UnitState:
+    """Wait (bounded) until the service manager reports `unit` (in)active. A unit this
+    manager cannot know leaves the scripts' word standing: the state shows unverified."""
+    deadline = ctx.monotonic() + UNIT_WAIT
+    while True:
+        state = ctx.services.state(unit)
+        if not state.known or state.running == active:
+            return state
+        if ctx.monotonic() >= deadline:
+            break
+        ctx.sleep(SETTLE_POLL)
+    if not active:
+        raise StepError(
+            f"{app}: {script or 'the stop'} ended but unit {unit} is still active after "
+            f"{UNIT_WAIT:g} s", details=_log_tail(ctx, unit),
+            hint="the unit must stop before another app may have the CAN bus; see `lpam "
+            "logs` and fix the app's stop.sh",
+        )
+    # An app that does not come up is a failed health check: the apply rolls back.
+    now = state.describe().removeprefix(f"unit {unit} ")
+    raise HealthError(
+        f"{app}: {script + ' exited 0 but ' if script else ''}unit {unit} is {now}, not "
+        f"active, {UNIT_WAIT:g} s after it was started", details=_log_tail(ctx, unit),
+        hint="see the app's output above; the unit named in the app's `service` file must "
+        "run once start.sh ends" if script else "see the app's output above: it exits "
+        "right after it starts",
+    )
+
+
+def _log_tail(ctx: Context, unit: str | None) -> list[str]:
+    """The unit's last lines of output, for the error that explains its failure; logs
+    are a courtesy there, so failing to read them is not an error of its own."""
+    if unit is None:
+        return []
+    try:
+        lines = ctx.services.logs(unit, LOG_LINES)
+    except Exception:
+        return []
+    return [f"{unit}: {line}" for line in lines[-LOG_LINES:]]
 
 
 def _stray(step: Step, ctx: Context) -> Stray | None:
@@ -144,11 +285,27 @@ def _stray_script(ctx: Context, stray: Stray, what: Literal["stop", "uninstall"]
                   or s.name != stray.name]
         ctx.save(ctx.record.model_copy(update={"strays": strays + ([new] if new else [])}))
 
-    run = ctx.run_id()
+    run = ctx.run_id() if stray.service is None else None
     replace(stray.model_copy(update={"pending": what, "run": run}))
-    fallback = Generation(app=stray.name, generation=stray.generation, params=stray.params)
-    gen = _generation(ctx, stray.name, stray.generation, fallback)
-    _run(ctx, gen, f"{what}.sh", stray.params, run)
+    if stray.folder is not None:  # an app LPAM installed: its own folder, its own scripts
+        assert run is not None
+        ctx.scripts.run(stray.name, ctx.layout.libpanda_apps / stray.folder, f"{what}.sh",
+                        stray.params, run=run)
+        if what == "uninstall":
+            appdir.set_current(ctx.layout, None)
+    elif stray.service is not None:
+        if what == "stop":
+            ctx.services.stop(stray.service)
+        else:
+            ctx.services.uninstall(stray.service)
+    else:
+        assert run is not None
+        fallback = Generation(app=stray.name, generation=stray.generation, params=stray.params)
+        gen = _generation(ctx, stray.name, stray.generation, fallback)
+        _run(ctx, gen, f"{what}.sh", stray.params, run)
+        if what == "uninstall":
+            appdir.release(ctx.layout, gen.folder,
+                           ctx.layout.generation_dir(gen.app, gen.generation))
     replace(None if what == "uninstall" else
             stray.model_copy(update={"stopped": True, "pending": None, "run": None}))
 
@@ -159,7 +316,7 @@ def stop(step: Step, ctx: Context) -> None:
         if stray is not None:
             _stray_script(ctx, stray, "stop")
         return
-    _lifecycle(ctx, _installed(step, ctx), "stop.sh", "stopping", "installed")
+    _lifecycle(ctx, _installed(step, ctx), "stop", "stopping", "installed")
 
 
 def uninstall(step: Step, ctx: Context) -> None:
@@ -169,7 +326,11 @@ def uninstall(step: Step, ctx: Context) -> None:
             _stray_script(ctx, stray, "uninstall")
         return
     # The generation stays until the apply succeeds: a failed cutover reinstalls it.
-    _lifecycle(ctx, _installed(step, ctx), "uninstall.sh", "uninstalling", None)
+    app = _installed(step, ctx)
+    _lifecycle(ctx, app, "uninstall", "uninstalling", None)
+    appdir.release(ctx.layout, app_folder(app.path),
+                   ctx.layout.generation_dir(app.name, app.generation))
+    appdir.set_current(ctx.layout, None)
 
 
 def install(step: Step, ctx: Context) -> None:
@@ -186,22 +347,84 @@ def install(step: Step, ctx: Context) -> None:
     if not ctx.layout.generation_dir(gen.app, gen.generation).is_dir():
         raise StepError(f"{gen.app}: generation {gen.generation} was not staged")
     app = AppRecord(name=gen.app, repository=gen.repository, commit=gen.commit, tree=gen.tree,
-                    path=gen.path, params=gen.params, generation=gen.generation)
-    _lifecycle(ctx, app, "install.sh", "installing", "installed")
+                    path=gen.path, params=gen.params, generation=gen.generation,
+                    service=gen.service, command=None if gen.command is None
+                    else list(gen.command), launch=gen.launch, user=_optional(step, "user"))
+    appdir.set_current(ctx.layout, gen.folder)
+    _lifecycle(ctx, app, "install", "installing", "installed")
+
+
+def configure(step: Step, ctx: Context) -> None:
+    """New parameters (or user) for the installed generation; a unit lpam wrote is
+    rewritten so that its next start has them."""
+    app = _installed(step, ctx).model_copy(
+        update={"params": _params(step), "user": _optional(step, "user")})
+    if app.scriptless and app.status not in ("installing", "uninstalling"):
+        ctx.services.install(_unit(ctx, app, _place(ctx, _meta(ctx, app))))
+    ctx.save_app(app)
 
 
 def start(step: Step, ctx: Context) -> None:
-    _lifecycle(ctx, _installed(step, ctx), "start.sh", "starting", "running")
+    app = _installed(step, ctx)
+    _lifecycle(ctx, app.model_copy(update={"held": False}), "start", "starting", "running")
 
 
-def prune(ctx: Context) -> None:
-    """After a successful apply, only generations still installed are kept (the app's and
-    any stray's: their scripts are what stops them), and only the exit code still awaited."""
+def verify(step: Step, ctx: Context) -> None:
+    """The health check: the unit stays active `settle_seconds` without restarting, then
+    `health.command` (when given) exits 0 within its timeout. HealthError rolls back."""
+    app = _installed(step, ctx)
+    health = step.args.get("health")
+    settings = health if isinstance(health, dict) else {}
+    settle = float(settings.get("settle_seconds", "0"))
+    timeout = float(settings.get("timeout_seconds", "10"))
+    if app.service is not None and settle > 0:
+        _settle(ctx, app, app.service, settle)
+    command = _argv(step, "health_command")
+    if command is not None:
+        place = _place(ctx, _meta(ctx, app))
+        ok, output = ctx.scripts.check(app.name, place, list(command), app.params,
+                                       timeout=timeout)
+        if not ok:
+            raise HealthError(
+                f"{app.name}: its health check `{' '.join(command)}` failed: {output}",
+                hint="fix the app (or its health settings) and apply again",
+                details=_log_tail(ctx, app.service))
+
+
+def _settle(ctx: Context, app: AppRecord, unit: str, seconds: float) -> None:
+    first = ctx.services.state(unit)
+    if not first.known:
+        return  # unverifiable here (a systemd unit under supervisord): the scripts' word
+    deadline = ctx.monotonic() + seconds
+    state = first
+    while True:
+        problem = None
+        if not state.running:
+            problem = f"{state.describe()}"
+        elif state.restarts > first.restarts or state.pid != first.pid:
+            problem = f"unit {unit} restarted (pid {first.pid} → {state.pid})"
+        if problem is not None:
+            raise HealthError(
+                f"{app.name} did not stay up for {seconds:g} s after it started: {problem}",
+                hint="fix the app and apply again", details=_log_tail(ctx, unit))
+        if ctx.monotonic() >= deadline:
+            return
+        ctx.sleep(min(SETTLE_POLL, max(deadline - ctx.monotonic(), 0)))
+        state = ctx.services.state(unit)
+
+
+def prune(ctx: Context, *, keep: int = 3) -> None:
+    """After a successful apply, generations still installed are kept (the app's and any
+    stray's: their scripts are what stops them), and the last `keep` good ones of the
+    history (what `lpam rollback` returns to); and only the exit codes still awaited."""
     record = ctx.record
-    keep = {GenerationKey.of(s.name, s.generation) for s in record.strays}
+    kept = {GenerationKey.of(s.name, s.generation) for s in record.strays}
+    good = [GenerationKey.of(h.app, h.generation) for h in record.history
+            if h.result == "applied"]
+    kept.update(list(dict.fromkeys(reversed(good)))[:keep])
     if record.app is not None:
-        keep.add(GenerationKey.of(record.app.name, record.app.generation))
-    generations.prune(ctx.layout, keep)
+        kept.add(GenerationKey.of(record.app.name, record.app.generation))
+    generations.prune(ctx.layout, kept)
     pending = {f"{r}.exit" for r in [record.app.run if record.app else None,
                                       *(s.run for s in record.strays)] if r}
     if ctx.layout.runs.is_dir():
@@ -217,5 +440,7 @@ RUNNERS: dict[StepKind, Callable[[Step, Context], None]] = {
     StepKind.STOP: stop,
     StepKind.UNINSTALL: uninstall,
     StepKind.INSTALL: install,
+    StepKind.CONFIGURE: configure,
     StepKind.START: start,
+    StepKind.VERIFY: verify,
 }

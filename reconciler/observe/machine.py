@@ -1,5 +1,7 @@
 """Read-only probes of the machine: the state record, the repository store, the staged
-generations and the journal of an interrupted apply. Nothing here writes.
+generations, the journal of an interrupted apply, and the installed app's unit as its
+service manager reports it now (the live state: the record says what lpam last did, the
+manager says what runs). Nothing here writes.
 
 Local edits are only looked for in checkouts the plan may move or remove: scanning every
 working tree on every plan would make a no-op plan pay for what it does not need.
@@ -16,10 +18,12 @@ from reconciler.planning.model import Observed, RepoObserved, Targets
 from reconciler.state import read_record
 
 if TYPE_CHECKING:
-    from reconciler.execution.ports import Store
+    from reconciler.execution.ports import Services, Store
+    from reconciler.unit import UnitState
 
 
-def observe(layout: Layout, store: Store, targets: Targets) -> Observed:
+def observe(layout: Layout, store: Store, targets: Targets,
+            services: Services | None = None) -> Observed:
     record = read_record(layout)
     wanted = {t.key: t for t in targets.repositories}
     keys = sorted(set(wanted) | {r.key for r in record.repositories})
@@ -39,4 +43,12 @@ def observe(layout: Layout, store: Store, targets: Targets) -> Observed:
         repositories=repositories,
         generations=generations.present(layout),
         interrupted=tuple(interrupted_steps(layout)),
+        live=live_state(record.app.service if record.app else None, services),
     )
+
+
+def live_state(unit: str | None, services: Services | None) -> UnitState | None:
+    """The app's unit now; None when it names none or no manager is asked."""
+    if unit is None or services is None:
+        return None
+    return services.state(unit)

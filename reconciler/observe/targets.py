@@ -23,10 +23,19 @@ from typing import TYPE_CHECKING
 
 from reconciler.documents import parse_catalog
 from reconciler.errors import CatalogError, RefNotFoundError
-from reconciler.planning.model import UNKNOWN, AppTarget, RepoTarget, Targets, short
-from schemas.catalog import CATALOG_FILE, Catalog
-from schemas.desired import DesiredState, RepositorySpec
+from reconciler.planning.model import (
+    UNKNOWN,
+    AppTarget,
+    HealthTarget,
+    RepoTarget,
+    Targets,
+    short,
+)
+from reconciler.unit import check_unit_name
+from schemas.catalog import CATALOG_FILE, Catalog, CatalogApp
+from schemas.desired import AppSpec, DesiredState, RepositorySpec
 from schemas.names import is_hex_commit, redact
+from schemas.service import DEFAULT_HEALTH_TIMEOUT, DEFAULT_SETTLE_SECONDS, Health
 
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
@@ -42,15 +51,20 @@ class Fetch(Enum):
     OFFLINE = "offline"
 
 
-def resolve(desired: DesiredState, *, base_dir: Path, store: GitStore, fetch: Fetch) -> Targets:
-    """Desired state → Targets; raises before any change if a ref does not exist."""
+def resolve(
+    desired: DesiredState, *, base_dir: Path, store: GitStore, fetch: Fetch,
+    default_user: str | None = None,
+) -> Targets:
+    """Desired state → Targets; raises before any change if a ref does not exist.
+    `default_user` runs a scriptless app that names no `user:` (the libpanda user)."""
     specs = desired.repositories
     if len(specs) > 1 and fetch is not Fetch.OFFLINE:
         with ThreadPoolExecutor(max_workers=min(FETCH_WORKERS, len(specs))) as pool:
             repos = list(pool.map(lambda s: _resolve_repo(s, base_dir, store, fetch), specs))
     else:
         repos = [_resolve_repo(s, base_dir, store, fetch) for s in specs]
-    app = _resolve_app(desired, repos, store) if desired.app is not None else None
+    app = (_resolve_app(desired, repos, store, default_user)
+           if desired.app is not None else None)
     return Targets(repositories=tuple(repos), app=app)
 
 
@@ -118,7 +132,9 @@ def _catalog(store: GitStore, repo: RepoTarget) -> Catalog | None:
     return parse_catalog(label, data.decode("utf-8", "replace"))
 
 
-def _resolve_app(desired: DesiredState, repos: list[RepoTarget], store: GitStore) -> AppTarget:
+def _resolve_app(
+    desired: DesiredState, repos: list[RepoTarget], store: GitStore, default_user: str | None
+) -> AppTarget:
     spec = desired.app
     assert spec is not None
     candidates = repos
@@ -131,7 +147,7 @@ def _resolve_app(desired: DesiredState, repos: list[RepoTarget], store: GitStore
                 hint="use the key (owner/name) or URL of a listed repository",
             )
         candidates = [r for r in repos if r.key == wanted.key]
-    found: list[tuple[RepoTarget, str]] = []
+    found: list[tuple[RepoTarget, CatalogApp]] = []
     unknown: list[RepoTarget] = []
     offered: list[str] = []
     for repo in candidates:
@@ -142,14 +158,15 @@ def _resolve_app(desired: DesiredState, repos: list[RepoTarget], store: GitStore
         app = catalog.app(spec.name)
         offered += [f"{a.name} ({repo.key})" for a in catalog.apps]
         if app is not None:
-            found.append((repo, app.path))
+            found.append((repo, app))
     if len(found) > 1:
         raise CatalogError(
             f"app {spec.name} is offered by {' and '.join(r.key for r, _ in found)}",
             hint="say which one with `app: {name: …, repository: owner/name}`",
         )
     if found:
-        repo, path = found[0]
+        repo, entry = found[0]
+        path = entry.path
         assert repo.commit is not None
         tree = store.folder_tree(repo.key, repo.commit, path)
         if tree is None:
@@ -158,8 +175,7 @@ def _resolve_app(desired: DesiredState, repos: list[RepoTarget], store: GitStore
                 f"{path!r}, but that folder does not exist",
                 hint="fix the repository's libpanda-apps.yaml or pin another commit",
             )
-        return AppTarget(name=spec.name, repository=repo.key, commit=repo.commit, path=path,
-                         tree=tree, params=dict(spec.params))
+        return _app_target(spec, repo, entry, tree, store, default_user)
     if unknown:
         repo = unknown[0] if len(unknown) == 1 else RepoTarget(UNKNOWN, "", None, None)
         return AppTarget(name=spec.name, repository=repo.key, commit=repo.commit, path=None,
@@ -169,3 +185,54 @@ def _resolve_app(desired: DesiredState, repos: list[RepoTarget], store: GitStore
         f"(available: {', '.join(offered) or 'none'})",
         hint="check the app name, or add the repository that offers it",
     )
+
+
+def _app_target(
+    spec: AppSpec, repo: RepoTarget, entry: CatalogApp, tree: str, store: GitStore,
+    default_user: str | None,
+) -> AppTarget:
+    """The desired app as it will run: how (scripts or a unit lpam writes), as whom, and
+    when it counts as healthy (the desired state's `health` over the catalog's)."""
+    assert repo.commit is not None
+    scriptless = entry.command is not None or entry.launch is not None
+    service = None
+    if not scriptless:
+        data = store.read_file(repo.key, repo.commit, f"{entry.path}/service", limit=4096)
+        text = data.decode("utf-8", "replace").strip() if data is not None else ""
+        if text:
+            try:
+                service = check_unit_name(text.split()[0])
+            except ValueError as exc:
+                raise CatalogError(
+                    f"{repo.key}@{short(repo.commit)}: app {spec.name}: its `service` file: "
+                    f"{exc}", hint="fix the app's `service` file or pin another commit",
+                ) from None
+    user = spec.user or default_user if scriptless else None
+    if user is not None:
+        _check_user(spec.name, user)
+    health = (spec.health or Health()).over(entry.health)
+    return AppTarget(
+        name=spec.name, repository=repo.key, commit=repo.commit, path=entry.path, tree=tree,
+        params=dict(spec.params), service=service,
+        command=tuple(entry.command) if entry.command is not None else None,
+        launch=entry.launch, user=user,
+        health=HealthTarget(
+            settle_seconds=DEFAULT_SETTLE_SECONDS if health.settle_seconds is None
+            else health.settle_seconds,
+            command=tuple(health.command) if health.command is not None else None,
+            timeout_seconds=DEFAULT_HEALTH_TIMEOUT if health.timeout_seconds is None
+            else health.timeout_seconds,
+        ),
+    )
+
+
+def _check_user(app: str, user: str) -> None:
+    import pwd
+
+    try:
+        pwd.getpwnam(user)
+    except KeyError:
+        raise CatalogError(
+            f"app {app}: user {user!r} does not exist on this machine",
+            hint="create the user, or set `app.user:` in the desired state to one that exists",
+        ) from None

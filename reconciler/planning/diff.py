@@ -6,7 +6,7 @@ every no-op says why nothing needs doing, so a user reading the plan can trust i
 
 from __future__ import annotations
 
-from reconciler.planning.lifecycle import keeps
+from reconciler.planning.lifecycle import same_generation
 from reconciler.planning.model import (
     UNKNOWN,
     AppTarget,
@@ -16,6 +16,7 @@ from reconciler.planning.model import (
     Targets,
     short,
 )
+from reconciler.unit import UnitState
 from schemas.names import is_hex_commit
 from schemas.plan import Action, Change
 from schemas.record import AppRecord, RepositoryRecord, StateRecord
@@ -37,7 +38,7 @@ def diff(targets: Targets, observed: Observed) -> list[Change]:
         if rec.key not in wanted
     ]
     changes += _strays(observed.record)
-    changes.append(_app(targets.app, observed.record.app, observed.generations))
+    changes.append(_app(targets.app, observed.record.app, observed.generations, observed.live))
     return changes
 
 
@@ -137,8 +138,10 @@ def _strays(record: StateRecord) -> list[Change]:
         Change(
             address=f"stray.{s.name}@{s.generation}", action=Action.DELETE,
             before={"name": s.name, "generation": s.generation, "params": dict(s.params)},
-            reason=f"{s.name} ({s.generation}) is installed on disk but in no state record "
-            "(the record was lost or moved aside): "
+            reason=(f"{s.name} was installed by LPAM (libpanda-app-manager) and is taken "
+                    f"over: " if s.folder is not None else
+                    f"{s.name} ({s.generation}) is installed on disk but in no state record "
+                    "(the record was lost or moved aside): ")
             + ("uninstalled" if s.stopped else "stopped and uninstalled")
             + " with its own scripts before any app is installed",
         )
@@ -147,7 +150,7 @@ def _strays(record: StateRecord) -> list[Change]:
 
 
 def _app(t: AppTarget | None, rec: AppRecord | None,
-         generations: frozenset[GenerationKey]) -> Change:
+         generations: frozenset[GenerationKey], live: UnitState | None = None) -> Change:
     before = (
         _app_fields(rec.name, rec.repository, rec.commit, rec.params, rec.status) if rec else None
     )
@@ -179,33 +182,60 @@ def _app(t: AppTarget | None, rec: AppRecord | None,
             reason=f"switch from {rec.name} to {t.name}: {rec.name} is stopped and "
             f"uninstalled before {t.name} is installed",
         )
-    same_params = rec.params == t.params
     if t.tree is None:
-        unchanged = t.commit == rec.commit and same_params
+        same_folder = t.commit == rec.commit
         detail = "folder compared after fetch"
     else:
-        unchanged = t.tree == rec.tree and same_params
+        same_folder = t.tree == rec.tree
         detail = f"folder {rec.tree[:12]} → {t.tree[:12]}"
-    if unchanged and not keeps(rec, t, generations):
+    command = list(t.command) if t.command is not None else None
+    same_how = (rec.command, rec.launch) == (command, t.launch)
+    if same_folder and same_how and not same_generation(rec, t, generations):
         return Change(
             address="app", action=Action.UPDATE, before=before, after=after,
             reason=f"{t.name}: its installed folder is missing from disk: copied out of git "
             "again and reinstalled",
         )
-    if unchanged and rec.status == "running":
-        moved = "" if t.commit == rec.commit else f"; repository now at {short(t.commit)}"
-        return Change(
-            address="app", action=Action.NOOP, before=before, after=after,
-            reason=f"{t.name} installed and running, app folder unchanged{moved}",
-        )
-    if unchanged:
-        return Change(address="app", action=Action.UPDATE, before=before, after=after,
-                      reason=f"{t.name} {_CUT_OFF[rec.status]}")
-    what = [] if same_params else ["parameters changed"]
-    if t.tree is None or t.tree != rec.tree:
-        what.insert(0, f"new version ({detail})")
+    if same_folder and same_how:
+        return _same_generation(t, rec, before, after, live)
+    what = ["new version (" + detail + ")" if not same_folder else "runs differently"]
+    if rec.params != t.params:
+        what.append("parameters changed")
     return Change(
         address="app", action=Action.UPDATE, before=before, after=after,
         reason=f"{t.name}: {', '.join(what)}; the old generation is stopped and uninstalled "
         "before the new one is installed",
     )
+
+
+def _same_generation(
+    t: AppTarget, rec: AppRecord, before: dict[str, str | bool | dict[str, str] | None] | None,
+    after: dict[str, str | bool | dict[str, str] | None] | None, live: UnitState | None,
+) -> Change:
+    """The installed generation is the wanted one: parameters, drift, holds, cut-off scripts."""
+    def update(reason: str) -> Change:
+        return Change(address="app", action=Action.UPDATE, before=before, after=after,
+                      reason=f"{t.name} {reason}")
+
+    if (rec.params, rec.user) != (t.params, t.user):
+        changed = sorted(k for k in set(rec.params) | set(t.params)
+                         if rec.params.get(k) != t.params.get(k))
+        what = f"parameters changed ({', '.join(changed)})" if changed else "user changed"
+        return update(f"{what}: restarted with the new values; no install script runs, no "
+                      "new generation")
+    if rec.held and rec.status in ("installed", "running"):
+        held = (f"{t.name} was stopped by an operator (`lpam stop`) and stays stopped until "
+                "`lpam start` or a change of the desired state")
+        return Change(address="app", action=Action.NOOP, before=before, after=after,
+                      reason=held, warnings=[held])
+    if rec.status == "running" and live is not None and live.known and not live.running:
+        return update(f"is not running ({live.describe()}): start")
+    if rec.status == "installed" and live is not None and live.running:
+        return Change(address="app", action=Action.NOOP, before=before, after=after,
+                      reason=f"{t.name} runs ({live.describe()}), though lpam did not "
+                      "start it", warnings=[f"{t.name} was started outside lpam"])
+    if rec.status == "running":
+        moved = "" if t.commit == rec.commit else f"; repository now at {short(t.commit)}"
+        return Change(address="app", action=Action.NOOP, before=before, after=after,
+                      reason=f"{t.name} installed and running, app folder unchanged{moved}")
+    return update(_CUT_OFF[rec.status])

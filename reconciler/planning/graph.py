@@ -15,7 +15,7 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from reconciler.errors import PlanError
-from reconciler.planning.lifecycle import app_steps, step
+from reconciler.planning.lifecycle import app_steps, refreshed, step
 from reconciler.planning.model import Observed, Targets
 from schemas.plan import Action, Change, Phase, Step, StepKind
 
@@ -40,7 +40,8 @@ def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> li
         if change.action is Action.DELETE and change.address.startswith("repository."):
             key = change.address.removeprefix("repository.")
             steps.append(step(StepKind.REMOVE, Phase.CLEANUP, key, key=key))
-    steps += app_steps(observed.record, targets.app, observed.generations)
+    steps += app_steps(refreshed(observed.record, observed.live), targets.app,
+                       observed.generations)
     return order(steps)
 
 

@@ -24,8 +24,9 @@ generation is staged (during preparation), installed and started.
 
 from __future__ import annotations
 
-from reconciler.planning.model import UNKNOWN, AppTarget, GenerationKey
-from schemas.plan import Phase, Step, StepKind
+from reconciler.planning.model import UNKNOWN, AppTarget, GenerationKey, HealthTarget
+from reconciler.unit import UnitState
+from schemas.plan import ArgValue, Phase, Step, StepKind
 from schemas.record import ACTIVE, AppRecord, StateRecord
 
 _SAME_GENERATION: dict[str, tuple[StepKind, ...]] = {
@@ -38,34 +39,50 @@ _SAME_GENERATION: dict[str, tuple[StepKind, ...]] = {
 }
 
 
-def step(kind: StepKind, phase: Phase, target: str,
-         **args: str | dict[str, str] | None) -> Step:
+def step(kind: StepKind, phase: Phase, target: str, **args: ArgValue) -> Step:
     return Step(id=f"{kind.value}:{target}", kind=kind, phase=phase, args=args)
 
 
-def keeps(old: AppRecord, new: AppTarget, generations: frozenset[GenerationKey]) -> bool:
-    """True when `new` is the generation already installed (and its folder is on disk)."""
-    if (old.name, old.repository, old.params) != (new.name, new.repository, new.params):
+def same_generation(old: AppRecord, new: AppTarget,
+                    generations: frozenset[GenerationKey]) -> bool:
+    """True when `new` runs the installed generation (same folder content, same way of
+    running, folder on disk), whatever its parameters."""
+    if (old.name, old.repository) != (new.name, new.repository):
+        return False
+    if (old.command, old.launch) != (_list(new.command), new.launch):
         return False
     same = new.tree == old.tree if new.tree is not None else new.commit == old.commit
     return same and GenerationKey.of(old.name, old.generation) in generations
 
 
+def keeps(old: AppRecord, new: AppTarget, generations: frozenset[GenerationKey]) -> bool:
+    """True when `new` is exactly what is installed: same generation, same parameters."""
+    return same_generation(old, new, generations) and _settings(old) == _settings(new)
+
+
+def _settings(app: AppRecord | AppTarget) -> tuple[dict[str, str], str | None]:
+    return dict(app.params), app.user
+
+
 def app_steps(
     record: StateRecord, new: AppTarget | None, generations: frozenset[GenerationKey], *,
-    start: bool = True,
+    start: bool = True, verify: bool = True,
 ) -> list[Step]:
-    """The steps that take the record's app (and strays) to `new`, started if `start`."""
+    """The steps that take the record's app (and strays) to `new`, started if `start`
+    (and its health checked if `verify`). An app an operator stopped (`held`) stays
+    stopped while it is the one wanted."""
     old = record.app
     steps = _stray_steps(record)
-    if new is not None and old is not None and keeps(old, new, generations):
-        kinds = _SAME_GENERATION[old.status]
-        if not start:
-            kinds = tuple(k for k in kinds if k is not StepKind.START)
-            if old.status in ("starting", "running"):
-                kinds = (StepKind.STOP,)
+    if new is not None and old is not None and same_generation(old, new, generations):
         target = f"{old.name}@{old.generation}"
-        return steps + [step(k, Phase.CUTOVER, target, **_recorded(old)) for k in kinds]
+        if keeps(old, new, generations):
+            kinds = _SAME_GENERATION[old.status]
+            if not start or (old.held and old.status == "installed"):
+                kinds = tuple(k for k in kinds if k is not StepKind.START)
+                if old.status in ("starting", "running"):
+                    kinds = (StepKind.STOP,)
+            return steps + [step(k, Phase.CUTOVER, target, **_recorded(old)) for k in kinds]
+        return steps + _reconfigure(old, new, target, start=start, verify=verify)
     gen = (new.generation or UNKNOWN) if new is not None else None
     if new is not None and gen is not None and GenerationKey.of(new.name, gen) not in generations:
         steps.insert(0, step(StepKind.STAGE, Phase.PREPARE, f"{new.name}@{gen}",
@@ -80,14 +97,41 @@ def app_steps(
         steps.append(step(StepKind.INSTALL, Phase.CUTOVER, target, **_wanted(new, gen)))
         if start:
             steps.append(step(StepKind.START, Phase.CUTOVER, target, **_wanted(new, gen)))
+            if verify and _checks(new.health):
+                steps.append(step(StepKind.VERIFY, Phase.CUTOVER, target, **_wanted(new, gen)))
     return steps
+
+
+def _reconfigure(old: AppRecord, new: AppTarget, target: str, *, start: bool,
+                 verify: bool) -> list[Step]:
+    """New parameters (or user) for the installed generation: stop it if it may run, record
+    them (a unit lpam wrote is rewritten), start it again. No install script runs and
+    nothing is fetched; a script that was cut off is finished first."""
+    wanted = _wanted(new, old.generation)
+    steps = []
+    if old.status in ACTIVE:
+        steps.append(step(StepKind.STOP, Phase.CUTOVER, target, **_recorded(old)))
+    steps.append(step(StepKind.CONFIGURE, Phase.CUTOVER, target, **wanted))
+    if old.status in ("installing", "uninstalling"):
+        steps.append(step(StepKind.INSTALL, Phase.CUTOVER, target, **wanted))
+    if start:
+        steps.append(step(StepKind.START, Phase.CUTOVER, target, **wanted))
+        if verify and _checks(new.health):
+            steps.append(step(StepKind.VERIFY, Phase.CUTOVER, target, **wanted))
+    return steps
+
+
+def _checks(health: HealthTarget) -> bool:
+    """Whether a health check has anything to check (`settle_seconds: 0` turns it off)."""
+    return health.settle_seconds > 0 or health.command is not None
 
 
 def _stray_steps(record: StateRecord) -> list[Step]:
     steps = []
     for stray in record.strays:
-        target = f"{stray.name}@{stray.generation} (found on disk)"
-        args: dict[str, str | dict[str, str] | None] = {
+        found = "taken over from LPAM" if stray.folder is not None else "found on disk"
+        target = f"{stray.name}@{stray.generation} ({found})"
+        args: dict[str, ArgValue] = {
             "app": stray.name, "generation": stray.generation, "params": dict(stray.params),
             "stray": "yes",
         }
@@ -97,19 +141,72 @@ def _stray_steps(record: StateRecord) -> list[Step]:
     return steps
 
 
-def _recorded(app: AppRecord) -> dict[str, str | dict[str, str] | None]:
+def _list(value: tuple[str, ...] | None) -> list[str] | None:
+    return None if value is None else list(value)
+
+
+def _recorded(app: AppRecord) -> dict[str, ArgValue]:
     return {"app": app.name, "generation": app.generation, "repository": app.repository,
             "commit": app.commit, "path": app.path, "tree": app.tree,
             "params": dict(app.params)}
 
 
-def _wanted(new: AppTarget, gen: str) -> dict[str, str | dict[str, str] | None]:
-    return {"app": new.name, "generation": gen, "repository": new.repository,
-            "commit": new.commit, "path": new.path, "tree": new.tree,
-            "params": dict(new.params)}
+def _wanted(new: AppTarget, gen: str) -> dict[str, ArgValue]:
+    args: dict[str, ArgValue] = {
+        "app": new.name, "generation": gen, "repository": new.repository,
+        "commit": new.commit, "path": new.path, "tree": new.tree, "params": dict(new.params),
+        "service": new.service, "command": _list(new.command), "launch": new.launch,
+        "user": new.user,
+    }
+    health = new.health
+    args["health"] = {"settle_seconds": f"{health.settle_seconds:g}",
+                      "timeout_seconds": f"{health.timeout_seconds:g}"}
+    if health.command is not None:
+        args["health_command"] = list(health.command)
+    return args
 
 
 def target_of(app: AppRecord) -> AppTarget:
     """The recorded app as a target again: what a rollback returns to."""
     return AppTarget(name=app.name, repository=app.repository, commit=app.commit,
-                     path=app.path, tree=app.tree, params=dict(app.params))
+                     path=app.path, tree=app.tree, params=dict(app.params),
+                     service=app.service,
+                     command=tuple(app.command) if app.command is not None else None,
+                     launch=app.launch, user=app.user, health=HealthTarget(settle_seconds=0))
+
+
+def refreshed(record: StateRecord, live: UnitState | None) -> StateRecord:
+    """The record as the service manager sees the app now (Terraform's refresh: the record
+    stays the prior state, this is the one planned from). An app recorded as running whose
+    unit the manager knows and reports not active has stopped behind lpam's back (a crash,
+    a reboot, someone's `systemctl stop`): it is planned as installed, so it is started.
+    One recorded as installed whose unit is active may hold the bus: planned as running,
+    so it is stopped before anything else is installed."""
+    app = record.app
+    if app is None or live is None or not live.known:
+        return record
+    if app.status == "running" and not live.running:
+        status = "installed"
+    elif app.status == "installed" and live.running:
+        status = "running"  # started behind lpam's back, or a stop that did not stop it
+    else:
+        return record
+    return record.model_copy(update={"app": app.model_copy(update={"status": status})})
+
+
+def operator_steps(record: StateRecord, action: str,
+                   generations: frozenset[GenerationKey]) -> list[Step]:
+    """`lpam start|stop|restart` on the installed app, by the same rules as any plan: a
+    script that was cut off is finished first, and nothing is started beside a stray."""
+    app = record.app
+    if app is None:
+        return []
+    current = target_of(app)
+    if action == "stop":
+        return app_steps(record, current, generations, start=False)
+    if action == "restart" and app.status in ("running", "starting"):
+        record = record.model_copy(update={"app": app.model_copy(update={"status": "stopping",
+                                                                      "held": False})})
+    else:
+        record = record.model_copy(update={"app": app.model_copy(update={"held": False})})
+    return app_steps(record, current, generations, verify=False)

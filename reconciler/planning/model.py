@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from reconciler.layout import slug
+from reconciler.unit import UnitState
 from schemas.record import StateRecord
 
 UNKNOWN = "(known after fetch)"  # a value a plan cannot know without the network
@@ -47,8 +48,21 @@ class RepoTarget:
 
 
 @dataclass(frozen=True)
+class HealthTarget:
+    """When the started app counts as healthy (schemas/service.py), defaults applied."""
+
+    settle_seconds: float = 10.0
+    command: tuple[str, ...] | None = None
+    timeout_seconds: float = 10.0
+
+
+@dataclass(frozen=True)
 class AppTarget:
-    """The desired app. `tree`/`path` are None when its commit is not fetched yet."""
+    """The desired app. `tree`/`path` are None when its commit is not fetched yet.
+
+    A script app runs by its lifecycle scripts, and `service` (from its `service` file)
+    names the unit whose state says whether it runs. A scriptless app gives `command` or
+    `launch`, and lpam writes its unit (run as `user`)."""
 
     name: str
     repository: str
@@ -56,13 +70,35 @@ class AppTarget:
     path: str | None
     tree: str | None
     params: dict[str, str] = field(default_factory=dict)
+    service: str | None = None
+    command: tuple[str, ...] | None = None
+    launch: str | None = None
+    user: str | None = None
+    health: HealthTarget = field(default_factory=HealthTarget)
 
     @property
     def generation(self) -> str | None:
-        """Generation id: the app folder's content plus its parameters, nothing else."""
+        """Generation id: the app folder's content and how it runs, nothing else.
+        Parameters are not part of it: a change of parameters alone restarts the app
+        with the new values, without a new generation or its install scripts."""
         if self.tree is None:
             return None
-        return generation_id(self.tree, self.params)
+        return generation_id(self.tree, self.how)
+
+    @property
+    def how(self) -> dict[str, str]:
+        """How the app runs, as far as it shapes the generation (empty for a script app)."""
+        how = {}
+        if self.command is not None:
+            how["command"] = json.dumps(list(self.command))
+        if self.launch is not None:
+            how["launch"] = self.launch
+        return how
+
+    @property
+    def folder(self) -> str | None:
+        """The app's folder name in LPAM's layout (/etc/libpanda.d/apps/<folder>)."""
+        return None if self.path is None else app_folder(self.path)
 
 
 @dataclass(frozen=True)
@@ -88,11 +124,17 @@ class Observed:
     repositories: dict[str, RepoObserved]
     generations: frozenset[GenerationKey] = frozenset()
     interrupted: tuple[str, ...] = ()
+    live: UnitState | None = None  # the installed app's unit, as its service manager says
 
 
-def generation_id(tree: str, params: dict[str, str]) -> str:
-    digest = hashlib.sha256(json.dumps(params, sort_keys=True).encode()).hexdigest()
+def generation_id(tree: str, how: dict[str, str]) -> str:
+    digest = hashlib.sha256(json.dumps(how, sort_keys=True).encode()).hexdigest()
     return f"{tree[:12]}-{digest[:8]}"
+
+
+def app_folder(path: str) -> str:
+    """The folder an app lives in, as LPAM named it: the last part of its catalog path."""
+    return slug(path.rstrip("/").rsplit("/", 1)[-1])
 
 
 def short(commit: str | None) -> str:

@@ -15,15 +15,20 @@ from reconciler.errors import PlanError, StalePlanError
 from reconciler.planning.diff import diff
 from reconciler.planning.graph import steps_for
 from reconciler.planning.model import UNKNOWN, Observed, Targets
-from schemas.plan import Action, Plan
+from schemas.plan import Action, Change, Plan
 
 
 def make_plan(
     targets: Targets, observed: Observed, *, now: datetime, lpam_version: str,
-    offline: bool = False,
+    offline: bool = False, hold: str | None = None,
 ) -> Plan:
-    changes = diff(targets, observed)
-    steps = steps_for(changes, targets, observed)
+    """`hold`: a rollback holds the machine (the reason); the plan proposes nothing."""
+    if hold is not None:
+        changes = [Change(address="app", action=Action.NOOP, reason=hold, warnings=[hold])]
+        steps = []
+    else:
+        changes = diff(targets, observed)
+        steps = steps_for(changes, targets, observed)
     counts = {a: sum(1 for c in changes if c.action is a) for a in Action}
     summary = (
         f"Plan: {counts[Action.CREATE]} to add, {counts[Action.UPDATE]} to change, "

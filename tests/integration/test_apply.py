@@ -113,7 +113,10 @@ def test_switch_app_stops_and_uninstalls_before_installing(
                              "alpha:uninstall:", "beta:install:", "beta:start:"]
     assert lpam.status()["app"]["name"] == "beta"
     generations = sorted(p.name for p in (lpam.root / "var/lib/lpam/generations").iterdir())
-    assert generations == ["beta"]  # alpha's generation, and its folder, are gone
+    assert generations == ["alpha", "beta"]  # alpha's is kept for `lpam rollback`
+    # ... but only the installed app is where LPAM's scripts look for apps
+    linked = sorted(p.name for p in (lpam.root / "etc/libpanda.d/apps").iterdir())
+    assert linked == ["beta"]
 
 
 def test_app_null_uninstalls_and_removed_repository_is_deleted(
@@ -178,7 +181,8 @@ def test_plan_json_has_format_version(
     plan = json.loads(lpam("plan", "--json").stdout)
     assert plan["format_version"] == 1
     assert [c["action"] for c in plan["changes"]] == ["create", "create"]
-    assert [s["kind"] for s in plan["steps"]] == ["checkout", "stage", "install", "start"]
+    assert [s["kind"] for s in plan["steps"]] == [
+        "checkout", "stage", "install", "start", "verify"]
 
 
 def test_local_edits_are_reported_and_never_thrown_away(
@@ -254,7 +258,11 @@ def test_scripts_get_params_a_log_and_a_timeout(
     text = logs[0].read_text()
     generation = lpam.root / "var/lib/lpam/generations/alpha"
     gen_dir = next(p for p in generation.iterdir() if p.is_dir())
-    assert f"dir={gen_dir} app_dir={gen_dir} rate=10" in text
+    # scripts run where LPAM put apps, a link to the generation: the field's scripts call
+    # their helpers by that absolute path
+    place = lpam.root / "etc/libpanda.d/apps/alpha"
+    assert f"dir={place} app_dir={place} rate=10" in text
+    assert gen_dir.is_dir() and not place.exists()  # the failed app was removed again
 
 
 @pytest.mark.parametrize("failing", ["install", "start"])

@@ -88,7 +88,8 @@ def test_version_status_and_validate(tmp_path: Path) -> None:
     ok = lpam("validate", str(TOP / "desired-state.example.yaml"))
     assert ok.returncode == 0 and "desired state" in ok.stdout
     catalog = lpam("validate", str(TOP / "examples/example-apps/libpanda-apps.yaml"))
-    assert catalog.returncode == 0 and "2 apps (can-logger, speed-monitor)" in catalog.stdout
+    assert catalog.returncode == 0
+    assert "3 apps (can-logger, speed-monitor, speed-logger)" in catalog.stdout
     folder = lpam("validate", str(TOP / "examples/example-apps"))
     assert folder.returncode == 0 and "app repository" in folder.stdout
     broken = tmp_path / "apps"

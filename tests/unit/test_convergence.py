@@ -25,6 +25,7 @@ from hypothesis import strategies as st
 
 from reconciler import generations
 from reconciler.adapters.memory import Crash, MemoryScripts, MemoryStore
+from reconciler.adapters.services.memory import MemoryServices
 from reconciler.errors import StepError
 from reconciler.execution.executor import execute
 from reconciler.execution.steps import Context
@@ -111,7 +112,8 @@ class World:
         plan = make_plan(targets, observe(self.layout, self.store, targets), now=NOW,
                          lpam_version="t")
         ctx = Context(layout=self.layout, store=self.store, scripts=self.scripts,
-                      record=read_record(self.layout), clock=lambda: NOW)
+                      services=MemoryServices(), record=read_record(self.layout),
+                      clock=lambda: NOW)
         try:
             execute(plan, ctx, progress=lambda _: None)
         except (StepError, Crash):

@@ -10,7 +10,14 @@ from typing import Any
 import pytest
 
 import migrations
-from migrations import CURRENT, STEPS, desired_state_v0_to_v1, state_record_v1_to_v2, upgrade
+from migrations import (
+    CURRENT,
+    STEPS,
+    desired_state_v0_to_v1,
+    state_record_v1_to_v2,
+    state_record_v2_to_v3,
+    upgrade,
+)
 from migrations.step import MigrationError
 from reconciler.errors import ConfigError, VersionError
 from reconciler.loading import load
@@ -22,6 +29,7 @@ FIXTURES = Path(migrations.__file__).parent / "fixtures"
 STEP_FIXTURES = {
     ("desired-state", "0.0"): FIXTURES / "desired-state" / "v0_to_v1",
     ("state-record", "1"): FIXTURES / "state-record" / "v1_to_v2",
+    ("state-record", "2"): FIXTURES / "state-record" / "v2_to_v3",
 }
 PATH = Path("doc.yaml")
 
@@ -33,6 +41,7 @@ def pairs(folder: Path) -> list[tuple[Path, Path]]:
 
 V0_PAIRS = pairs(STEP_FIXTURES[("desired-state", "0.0")])
 RECORD_PAIRS = pairs(STEP_FIXTURES[("state-record", "1")])
+RECORD_V3_PAIRS = pairs(STEP_FIXTURES[("state-record", "2")])
 
 
 def read(path: Path) -> Any:
@@ -84,6 +93,18 @@ def test_state_record_v1_to_v2_matches_fixture_and_validates(before: Path, after
     assert record.app is None or record.app.running is data["app"]["running"]
 
 
+@pytest.mark.parametrize(("before", "after"), RECORD_V3_PAIRS, ids=lambda p: p.name)
+def test_state_record_v2_to_v3_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert state_record_v2_to_v3.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    record = StateRecord.model_validate(upgrade("state-record", data, path=before))
+    assert record.history == [] and record.last_apply is None
+    assert record.app is None or (record.app.status == data["app"]["status"]
+                                  and not record.app.held and record.app.service is None)
+
+
 def test_state_record_v1_with_a_bad_flag_is_located() -> None:
     doc = load(PATH, "version: 1\napp:\n  name: x\n  running: maybe\n")
     with pytest.raises(ConfigError) as info:
@@ -102,10 +123,10 @@ def test_current_version_passes_through(version: object) -> None:
 @pytest.mark.parametrize("kind", sorted(CURRENT))
 def test_newer_version_is_refused_naming_both(kind: str) -> None:
     with pytest.raises(VersionError) as info:
-        upgrade(kind, {"version": 3}, path=PATH)
+        upgrade(kind, {"version": 9}, path=PATH)
     message = info.value.message
     assert "newer lpam" in message
-    assert "document version 3" in message
+    assert "document version 9" in message
     assert f"reads up to {CURRENT[kind]}" in message
     assert info.value.hint == "upgrade lpam"
 

@@ -68,7 +68,8 @@ def test_first_apply_creates_repository_and_app() -> None:
     assert {c.address: c.action for c in plan.changes} == {
         "repository.o/apps": Action.CREATE, "app": Action.CREATE}
     assert [s.kind for s in plan.steps] == [
-        StepKind.CHECKOUT, StepKind.STAGE, StepKind.INSTALL, StepKind.START]
+        StepKind.CHECKOUT, StepKind.STAGE, StepKind.INSTALL, StepKind.START,
+        StepKind.VERIFY]
     assert plan.summary == "Plan: 2 to add, 0 to change, 0 to replace, 0 to destroy."
 
 
@@ -93,7 +94,8 @@ def test_new_app_folder_replaces_generation_old_first() -> None:
     old, new = installed().generation, generation_id(T2, {})
     assert kinds == [
         (StepKind.CHECKOUT, None), (StepKind.STAGE, new), (StepKind.STOP, old),
-        (StepKind.UNINSTALL, old), (StepKind.INSTALL, new), (StepKind.START, new)]
+        (StepKind.UNINSTALL, old), (StepKind.INSTALL, new), (StepKind.START, new),
+        (StepKind.VERIFY, new)]
 
 
 def test_switch_app_is_replace_and_stops_old_before_installing_new() -> None:
@@ -178,7 +180,8 @@ def test_missing_generation_folder_is_restaged_and_reinstalled() -> None:
     plan = make_plan(Targets((repo(),), app()), obs, now=NOW, lpam_version="t")
     assert plan.changes[-1].action is Action.UPDATE and "missing" in plan.changes[-1].reason
     assert [s.kind for s in plan.steps] == [
-        StepKind.STAGE, StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START]
+        StepKind.STAGE, StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START,
+        StepKind.VERIFY]
 
 
 @pytest.mark.parametrize(("status", "kinds"), [
@@ -207,7 +210,8 @@ def test_an_app_that_may_be_active_is_stopped_before_another_is_installed(status
     plan = make_plan(Targets((repo(),), app("y", tree=T2)), observed(app_rec=rec), now=NOW,
                      lpam_version="t")
     kinds = [s.kind for s in plan.steps if s.phase is Phase.CUTOVER]
-    assert kinds == [StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START]
+    assert kinds == [StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START,
+                     StepKind.VERIFY]
 
 
 @pytest.mark.parametrize("status", ["installing", "installed", "uninstalling"])
@@ -216,7 +220,7 @@ def test_an_inactive_app_is_uninstalled_without_stop(status: str) -> None:
     plan = make_plan(Targets((repo(),), app("y", tree=T2)), observed(app_rec=rec), now=NOW,
                      lpam_version="t")
     kinds = [s.kind for s in plan.steps if s.phase is Phase.CUTOVER]
-    assert kinds == [StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START]
+    assert kinds == [StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START, StepKind.VERIFY]
 
 
 def test_strays_found_on_disk_are_stopped_and_uninstalled_before_any_install() -> None:
@@ -235,7 +239,7 @@ def test_strays_found_on_disk_are_stopped_and_uninstalled_before_any_install() -
     # the same app wanted again: it is still cycled through its own scripts first
     same = make_plan(Targets((repo(),), app("x")), obs, now=NOW, lpam_version="t")
     assert [s.kind for s in same.steps if s.phase is Phase.CUTOVER] == [
-        StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START]
+        StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START, StepKind.VERIFY]
 
 
 def test_an_app_name_that_is_not_its_folder_name_is_not_reinstalled() -> None:
@@ -246,3 +250,29 @@ def test_an_app_name_that_is_not_its_folder_name_is_not_reinstalled() -> None:
         generations=frozenset({GenerationKey("alpha", rec.generation)}))
     plan = make_plan(Targets((repo(),), app("alpha.")), obs, now=NOW, lpam_version="t")
     assert plan.steps == []
+
+
+def test_live_state_refreshes_the_record_both_ways() -> None:
+    """The record is the prior state; the service manager says what runs now."""
+    from dataclasses import replace
+
+    from reconciler.unit import UnitState
+
+    running = installed().model_copy(update={"service": "can"})
+    down = replace(observed(app_rec=running), live=UnitState("can", known=True,
+                                                             active="inactive"))
+    plan = make_plan(Targets((repo(),), app()), down, now=NOW, lpam_version="t")
+    assert [s.kind for s in plan.steps] == [StepKind.START]
+    change = next(c for c in plan.changes if c.address == "app")
+    assert "is not running (unit can inactive): start" in change.reason
+    # installed, yet its unit is active: it may hold the bus, so it is stopped before a switch
+    stopped = installed(running=False).model_copy(update={"service": "can"})
+    up = replace(observed(app_rec=stopped), live=UnitState("can", known=True, active="active"))
+    switch = make_plan(Targets((repo(),), app("y", tree=T2)), up, now=NOW, lpam_version="t")
+    kinds = [s.kind for s in switch.steps if s.phase is Phase.CUTOVER]
+    assert kinds[:2] == [StepKind.STOP, StepKind.UNINSTALL]
+    same = make_plan(Targets((repo(),), app()), up, now=NOW, lpam_version="t")
+    assert same.steps == [] and "started outside lpam" in same.changes[-1].warnings[0]
+    # a unit this manager cannot know changes nothing: the scripts' word stands
+    unknown = replace(observed(app_rec=running), live=UnitState("can", known=False))
+    assert make_plan(Targets((repo(),), app()), unknown, now=NOW, lpam_version="t").steps == []

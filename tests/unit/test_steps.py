@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.memory import MemoryScripts, MemoryStore
+from reconciler.adapters.services.memory import MemoryServices
 from reconciler.errors import StepError
 from reconciler.execution.steps import RUNNERS, Context
 from reconciler.layout import Layout
@@ -37,7 +38,8 @@ def machine(tmp_path: Path, record: StateRecord) -> tuple[Context, MemoryScripts
     scripts = MemoryScripts(runs_dir=layout.runs)
     if record.lineage is not None or record.strays:
         record = write_record(layout, record)
-    return Context(layout=layout, store=store, scripts=scripts, record=record,
+    return Context(layout=layout, store=store, scripts=scripts, services=MemoryServices(),
+                   record=record,
                    clock=lambda: NOW), scripts
 
 

@@ -1,0 +1,130 @@
+"""The installed app where LPAM put it: `/etc/libpanda.d/apps/<folder>`, and LPAM's
+manifest kept true.
+
+The field's scripts call their helpers by absolute path
+(`/etc/libpanda.d/apps/cbf/installRosPackagesForCbf.sh`), so the generation lpam installs
+must be reachable there. It is a symlink to the generation folder, switched atomically (a
+new link renamed over the old one, then the directory fsynced): at every instant the path
+names one whole generation, never a half-copied folder. Whatever script runs is run
+through that path, with that path as its working directory.
+
+On a vehicle that used LPAM the path may be LPAM's own copy of the folder (a directory):
+it is moved, not deleted, under `var/lib/lpam/replaced/`. Where LPAM's manifest exists,
+its `current:` (and the older `app` file) names the app lpam installed, so LPAM's own
+tools and the libpanda scripts that read it still see the truth.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+from reconciler.atomic import fsync_dir, write_atomic
+from reconciler.errors import ConfigError, StepError
+from reconciler.layout import Layout, slug
+from reconciler.legacy.files import APP_FILE, MAX_BYTES, YAML_MANIFEST
+from reconciler.reading import read_bounded
+
+
+def point(layout: Layout, folder: str, target: Path) -> Path:
+    """Make `/etc/libpanda.d/apps/<folder>` lead to `target`; returns that path."""
+    link = layout.app_link(folder)
+    if link.is_symlink() and os.readlink(link) == str(target):
+        return link
+    link.parent.mkdir(parents=True, exist_ok=True)
+    if link.exists() and not link.is_symlink():
+        _move_aside(layout, link)
+    tmp = link.parent / f".{folder}.lpam-{os.getpid()}"
+    with contextlib.suppress(FileNotFoundError):
+        tmp.unlink()
+    os.symlink(target, tmp)
+    os.replace(tmp, link)
+    fsync_dir(link.parent)
+    return link
+
+
+def release(layout: Layout, folder: str, target: Path) -> None:
+    """Remove the link when it still leads to `target` (another generation's is kept)."""
+    link = layout.app_link(folder)
+    if link.is_symlink() and os.readlink(link) == str(target):
+        link.unlink()
+        fsync_dir(link.parent)
+
+
+def _move_aside(layout: Layout, folder: Path) -> None:
+    layout.replaced.mkdir(parents=True, exist_ok=True)
+    for n in range(1000):
+        dest = layout.replaced / (folder.name if n == 0 else f"{folder.name}.{n}")
+        if not os.path.lexists(dest):
+            os.rename(folder, dest)
+            return
+    raise StepError(f"cannot move LPAM's folder {folder} aside: {layout.replaced} is full",
+                    hint=f"clean up {layout.replaced}")
+
+
+def set_current(layout: Layout, folder: str | None) -> None:
+    """Keep LPAM's record of the current app true, where LPAM left one."""
+    manifest = layout.libpanda / YAML_MANIFEST
+    if manifest.is_file() and not manifest.is_symlink():
+        _set_manifest(manifest, folder)
+    app_file = layout.libpanda / APP_FILE
+    if app_file.is_file() and not app_file.is_symlink():
+        write_atomic(app_file, f"{folder or 'None'}\n")
+
+
+def _set_manifest(path: Path, folder: str | None) -> None:
+    from reconciler.loading import dump, load
+
+    try:
+        doc = load(path, read_bounded(path, limit=MAX_BYTES, follow_symlinks=False)
+                   .decode("utf-8", "replace"))
+    except ConfigError:
+        return  # a manifest lpam cannot read is left as it is; LPAM no longer runs here
+    data = doc.tree
+    if not isinstance(data, dict) or data.get("current") == (folder or "None"):
+        return
+    data["current"] = folder or "None"
+    write_atomic(path, dump(data))
+
+
+USER_FILE = "libpanda_usr"
+
+
+def libpanda_user(layout: Layout) -> str | None:
+    """The libpanda user (`/etc/libpanda.d/libpanda_usr`): scriptless apps run as it unless
+    the desired state says otherwise; None when the file is absent or unreadable."""
+    try:
+        text = read_bounded(layout.libpanda / USER_FILE, limit=256, follow_symlinks=False)
+    except (FileNotFoundError, ConfigError):
+        return None
+    words = text.decode("utf-8", "replace").split()
+    return words[0] if words else None
+
+
+def lpam_current(layout: Layout) -> str | None:
+    """The app LPAM installed on this vehicle, if its folder is still LPAM's own copy: the
+    manifest's `current:` (2023-08-17 on), else the older `app` file; None for `None`, a
+    name that is not a folder, or a folder that is already lpam's link."""
+    name = None
+    manifest = layout.libpanda / YAML_MANIFEST
+    try:
+        if manifest.is_file():
+            from reconciler.loading import load
+
+            data = load(manifest, read_bounded(manifest, limit=MAX_BYTES, follow_symlinks=False)
+                        .decode("utf-8", "replace")).data
+            value = data.get("current") if isinstance(data, dict) else None
+            name = value if isinstance(value, str) else None
+        if name is None and (layout.libpanda / APP_FILE).is_file():
+            text = read_bounded(layout.libpanda / APP_FILE, limit=4096, follow_symlinks=False)
+            words = text.decode("utf-8", "replace").split()
+            name = words[0] if words else None
+    except ConfigError:
+        return None
+    if name is None or name == "None" or slug(name) != name:
+        return None
+    folder = layout.libpanda_apps / name
+    if folder.is_symlink() or not folder.is_dir():
+        return None
+    return name

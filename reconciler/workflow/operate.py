@@ -1,0 +1,95 @@
+"""Operator commands on the installed app — `lpam start|stop|restart|rollback` — run as
+journalled plans through the same executor as every apply.
+
+They are what LPAM's `-s`/`-k` and the field tool's `As`/`Ar` did, made safe: under the
+apply lock, by the planner's rules (a cut-off script is finished first, nothing starts
+beside a stray), and written down. An operator's stop *holds*: the record marks the app
+`held`, and plans leave it stopped until `lpam start` or a change of the desired state.
+A rollback returns to the previous good generation with no network, and holds too: until
+the desired state changes, plan and apply report it and propose nothing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+from datetime import datetime
+
+from reconciler import __version__, generations
+from reconciler.errors import LpamError
+from reconciler.execution.executor import execute
+from reconciler.execution.steps import Context
+from reconciler.planning.lifecycle import app_steps, operator_steps, target_of
+from reconciler.planning.model import GenerationKey
+from reconciler.planning.plan import fingerprint
+from schemas.desired import DesiredState
+from schemas.plan import Plan, Step
+from schemas.record import AppRecord, HistoryEntry, Hold
+
+Progress = Callable[[str], None]
+
+
+def _plan(ctx: Context, steps: list[Step], summary: str, now: datetime) -> Plan:
+    plan = Plan(lpam_version=__version__, created_at=now.isoformat(timespec="seconds"),
+                lineage=ctx.record.lineage, serial=ctx.record.serial, changes=[],
+                steps=steps, summary=summary)
+    return plan.model_copy(update={"fingerprint": fingerprint(plan)})
+
+
+def operate(ctx: Context, action: str, *, progress: Progress) -> str:
+    """Start, stop or restart the installed app now; returns what was done."""
+    app = ctx.record.app
+    if app is None:
+        raise LpamError(f"no app is installed: nothing to {action}",
+                        hint="install one with `lpam apply`")
+    if action == "stop":
+        ctx.save_app(app.model_copy(update={"held": True}))
+    steps = operator_steps(ctx.record, action, generations.present(ctx.layout))
+    if steps:
+        execute(_plan(ctx, steps, f"{action} {app.name}", ctx.clock()), ctx,
+                progress=progress, record_result=False)
+    if action == "stop":
+        return (f"Stopped {app.name}; it stays stopped until `lpam start` or a change of "
+                "the desired state.")
+    verb = {"start": "Started", "restart": "Restarted"}[action]
+    return f"{verb} {app.name}." if steps else f"{app.name} is already running."
+
+
+def previous_good(ctx: Context) -> HistoryEntry:
+    """The last good generation other than the installed one, still on disk."""
+    app = ctx.record.app
+    present = generations.present(ctx.layout)
+    for entry in reversed(ctx.record.history):
+        if entry.result != "applied":
+            continue
+        if app is not None and (entry.generation, entry.params) == (app.generation, app.params):
+            continue
+        if GenerationKey.of(entry.app, entry.generation) in present:
+            return entry
+    raise LpamError("no previous good generation is kept on disk to roll back to",
+                    hint="see `lpam history`; lpam keeps the last 3 good generations")
+
+
+def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,
+             progress: Progress) -> str:
+    """Make `entry` current again through journalled steps, and hold it there."""
+    record = AppRecord(name=entry.app, repository=entry.repository, commit=entry.commit,
+                       tree=entry.tree, path=entry.path, params=dict(entry.params),
+                       generation=entry.generation, command=entry.command,
+                       launch=entry.launch, service=entry.service, user=entry.user)
+    steps = app_steps(ctx.record, target_of(record), generations.present(ctx.layout),
+                      verify=False)
+    if steps:
+        execute(_plan(ctx, steps, f"roll back to {entry.app}@{entry.generation}",
+                      ctx.clock()), ctx, progress=progress, record_result=False)
+    hold = Hold(desired=desired_fingerprint(desired), generation=entry.generation)
+    ctx.save(ctx.record.model_copy(update={"hold": hold}))
+    return (f"Rolled back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}). "
+            "It holds: plan and apply propose nothing until the desired state changes "
+            "(or `lpam apply --release`).")
+
+
+def desired_fingerprint(desired: DesiredState | None) -> str:
+    """What a hold compares: the desired state's content, not its formatting."""
+    text = "" if desired is None else desired.model_dump_json()
+    return hashlib.sha256(text.encode()).hexdigest()
