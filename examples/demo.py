@@ -56,27 +56,32 @@ def build_repository() -> str:
 def lpam(*args: str, check: bool = True) -> int:
     shown = " ".join(["lpam", *args]).replace(str(TOP) + "/", "")
     print(f"\n$ {shown}", flush=True)
-    env = dict(os.environ, LPAM_ROOT=str(ROOT))
+    # supervisord under the sandbox root runs the apps, even on a machine where systemd
+    # runs: the demo must never touch this machine's own services.
+    env = dict(os.environ, LPAM_ROOT=str(ROOT), LPAM_SERVICES="supervisor")
     code = subprocess.call([*LPAM, *args], cwd=TOP, env=env)
     if check and code not in (0, 2):
         raise SystemExit(f"demo failed: `{shown}` exited {code}")
     return code
 
 
-def switched_desired_state(app: str) -> Path:
+def switched_desired_state(app: str, params: dict[str, str], name: str) -> Path:
     """The example desired state with another app, comments kept (round-trip YAML)."""
     yaml = YAML()
     data = yaml.load(EXAMPLE.read_text())
     data["app"]["name"] = app
-    data["app"]["params"] = {"SPEED_UNIT": "km/h"}
+    data["app"]["params"] = params
     data["repositories"][0]["url"] = REPO.name  # relative to the new file's folder
-    path = DEMO / "desired-state.switched.yaml"
+    path = DEMO / f"desired-state.{name}.yaml"
     with path.open("w") as out:
         yaml.dump(data, out)
     return path
 
 
 def main() -> int:
+    if ROOT.exists():  # a previous demo's supervisord, if it was left running
+        subprocess.call([*LPAM, "--root", str(ROOT), "services", "shutdown"],
+                        stdout=subprocess.DEVNULL)
     shutil.rmtree(ROOT, ignore_errors=True)
     DEMO.mkdir(exist_ok=True)
     print("== 1. Build the example app repository (.demo/example-apps.git)")
@@ -91,7 +96,7 @@ def main() -> int:
     code = lpam("plan", "-f", str(EXAMPLE), "--detailed-exitcode")
     print(f"   (exit code {code}: 0 means no changes)")
     print("\n== 5. Switch the app: can-logger is stopped and uninstalled before speed-monitor")
-    other = switched_desired_state("speed-monitor")
+    other = switched_desired_state("speed-monitor", {"SPEED_UNIT": "km/h"}, "switched")
     lpam("plan", "-f", str(other))
     started = time.monotonic()
     lpam("apply", "-f", str(other), "--yes")
@@ -105,7 +110,23 @@ def main() -> int:
     bad = DEMO / "bad.yaml"
     bad.write_text("version: 1\nrepositories:\n  - url: x\n    reff: main\napp: null\n")
     lpam("plan", "-f", str(bad), check=False)
+    print("\n== 7. A scriptless app: lpam writes its unit and supervisord runs it")
+    logger = switched_desired_state("speed-logger", {"RATE_HZ": "4"}, "logger")
+    lpam("apply", "-f", str(logger), "--yes")
+    lpam("status")
+    time.sleep(1)
+    lpam("logs", "-n", "3")
+    print("\n== 8. A broken release: the new version crashes after a second; the health")
+    print("   check catches it and lpam rolls back to the version that worked (exit 3)")
+    broken = switched_desired_state("speed-logger", {"RATE_HZ": "4", "CRASH_AFTER": "1"},
+                                    "broken")
+    code = lpam("apply", "-f", str(broken), "--yes", check=False)
+    if code != 3:
+        raise SystemExit(f"demo failed: the broken release should exit 3, not {code}")
     lpam("status", "--json")
+    lpam("history")
+    print("\n== 9. Stop supervisord (and the app it runs)")
+    lpam("services", "shutdown")
     print("\nDemo complete. The sandbox root is .demo/root; rerun to start afresh.")
     return 0
 
