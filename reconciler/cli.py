@@ -9,6 +9,7 @@ only by the commands that need them, so `lpam --version` and `lpam status` start
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import os
@@ -180,6 +181,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except LpamError as exc:
         print(exc.render(), file=sys.stderr)
         return exc.exit_code
+    except BrokenPipeError:  # `lpam plan | head`: the reader left; nothing more to say
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
     except (KeyboardInterrupt, Terminated) as exc:
         print("interrupted: lpam stopped the script it was running and recorded where it "
               "stood; run `lpam apply` again to resume", file=sys.stderr)
@@ -236,7 +241,6 @@ def _prepare(
     from reconciler.legacy.appdir import libpanda_user
     from reconciler.observe.machine import observe
     from reconciler.observe.targets import Fetch, resolve
-    from reconciler.planning.model import Observed, Targets
     from reconciler.planning.plan import make_plan
     from reconciler.state import read_record
 
@@ -244,9 +248,7 @@ def _prepare(
     record = read_record(layout)
     hold = _hold(record, desired)
     if hold is not None:  # a rollback holds: nothing to resolve, no network needed
-        plan = make_plan(Targets((), None), Observed(record=record, repositories={}),
-                         now=now(), lpam_version=__version__, hold=hold)
-        return store, plan
+        return store, _held_plan(layout, store, services, record, hold)
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
                       default_user=libpanda_user(layout))
     observed = observe(layout, store, targets, services)
@@ -263,6 +265,29 @@ def _prepare(
                 else "its script finished since, so nothing is left to redo")
         print(f"note: the last apply was interrupted during {cut}; {rest}", file=sys.stderr)
     return store, plan
+
+
+def _held_plan(layout: Layout, store: GitStore, services: Services, record: StateRecord,
+               hold: str) -> Plan:
+    """While a rollback holds: the steps that finish it if it was cut off, else nothing."""
+    from reconciler.observe.machine import observe
+    from reconciler.planning.lifecycle import target_of
+    from reconciler.planning.model import Observed, RepoTarget, Targets
+    from reconciler.planning.plan import make_plan
+    from reconciler.workflow.operate import as_record
+
+    target = record.hold.target if record.hold is not None else None
+    if target is not None:
+        repos = tuple(RepoTarget(r.key, r.url, r.ref, r.commit) for r in record.repositories)
+        targets = Targets(repos, target_of(as_record(target)))
+        plan = make_plan(targets, observe(layout, store, targets, services), now=now(),
+                         lpam_version=__version__)
+        if plan.steps:
+            print(f"note: the rollback to {target.app} ({target.generation}) was cut off; "
+                  "the steps below finish it", file=sys.stderr)
+            return plan
+    return make_plan(Targets((), None), Observed(record=record, repositories={}),
+                     now=now(), lpam_version=__version__, hold=hold)
 
 
 def _hold(record: StateRecord, desired: DesiredState) -> str | None:

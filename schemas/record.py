@@ -132,6 +132,9 @@ class Hold(BaseModel):
 
     desired: str = Field(description="fingerprint of the desired state that was rolled back")
     generation: str = Field(description="the generation the rollback returned to")
+    target: HistoryEntry | None = Field(
+        default=None, description="what the rollback returns to: a rollback cut off by a "
+        "crash is finished by the next plan and apply")
 
 
 class StateRecord(BaseModel):

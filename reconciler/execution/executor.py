@@ -22,7 +22,7 @@ from reconciler.execution.journal import Journal
 from reconciler.execution.steps import RUNNERS, Context, prune
 from reconciler.planning.lifecycle import app_steps, target_of
 from schemas.plan import Phase, Plan, Step
-from schemas.record import ApplyResult, AppRecord, HistoryEntry, LastApply
+from schemas.record import ApplyResult, AppRecord, HistoryEntry, Hold, LastApply
 
 KEEP_GENERATIONS = 3
 
@@ -60,6 +60,15 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
     prune(ctx, keep=KEEP_GENERATIONS)
 
 
+def _hold_after(ctx: Context, result: ApplyResult) -> Hold | None:
+    """An apply that installs something other than what a rollback returned to ends the
+    hold; the apply that finished a cut-off rollback keeps it."""
+    hold, app = ctx.record.hold, ctx.record.app
+    if hold is None or result != "applied":
+        return hold
+    return hold if app is not None and app.generation == hold.generation else None
+
+
 def _finish(ctx: Context, result: ApplyResult, reason: str | None, *,
             failed: AppRecord | None = None) -> None:
     """Record how the apply ended, and the generation it made current (history)."""
@@ -80,8 +89,7 @@ def _finish(ctx: Context, result: ApplyResult, reason: str | None, *,
     ctx.save(ctx.record.model_copy(update={
         "last_apply": LastApply(time=when, result=result, reason=reason),
         "history": history[-20:],
-        # an apply of a changed desired state ends a rollback's hold
-        "hold": None if result == "applied" else ctx.record.hold,
+        "hold": _hold_after(ctx, result),
     }))
 
 

@@ -64,6 +64,11 @@ class Services(Protocol):
 
     kind: str
 
+    def check(self, unit: Unit) -> None:
+        """Refuse (ServiceError) a unit this manager could not run as written, without
+        installing or starting anything: called while preparing, before the cutover."""
+        ...
+
     def install(self, unit: Unit) -> None: ...
 
     def uninstall(self, name: str) -> None: ...

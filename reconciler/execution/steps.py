@@ -29,14 +29,15 @@ from pathlib import Path
 from typing import Literal
 
 from reconciler import generations
-from reconciler.errors import HealthError, StepError
+from reconciler.errors import ConfigError, HealthError, ServiceError, StepError
 from reconciler.execution.ports import Scripts, Services, Store
 from reconciler.generations import Generation
 from reconciler.layout import Layout
 from reconciler.legacy import appdir
 from reconciler.planning.model import GenerationKey, app_folder
+from reconciler.reading import read_bounded
 from reconciler.state import write_record
-from reconciler.unit import Unit, UnitState, unit_name
+from reconciler.unit import Unit, UnitState, check_unit_name, unit_name
 from schemas.plan import Step, StepKind
 from schemas.record import AppRecord, AppStatus, RepositoryRecord, StateRecord, Stray
 
@@ -129,8 +130,21 @@ def _wanted(step: Step) -> Generation:
 
 
 def stage(step: Step, ctx: Context) -> None:
-    """Copy the app folder at its commit into an immutable generation directory."""
-    generations.stage(ctx.layout, ctx.store, _wanted(step))
+    """Copy the app folder at its commit into an immutable generation directory; for a
+    scriptless app, have the service manager check the unit it will run (a unit that
+    cannot run is refused now, while the old app still runs, not after it was stopped)."""
+    gen = _wanted(step)
+    folder = generations.stage(ctx.layout, ctx.store, gen)
+    if gen.scriptless:
+        app = AppRecord(name=gen.app, repository=gen.repository, commit=gen.commit,
+                        tree=gen.tree, path=gen.path, params=gen.params,
+                        generation=gen.generation,
+                        command=None if gen.command is None else list(gen.command),
+                        launch=gen.launch, user=_optional(step, "user"))
+        try:
+            ctx.services.check(_unit(ctx, app, folder))
+        except ServiceError as exc:
+            raise StepError(f"{gen.app}: {exc.message}", hint=exc.hint) from None
 
 
 def _generation(ctx: Context, app: str, generation: str, fallback: Generation) -> Generation:
@@ -289,8 +303,15 @@ def _stray_script(ctx: Context, stray: Stray, what: Literal["stop", "uninstall"]
     replace(stray.model_copy(update={"pending": what, "run": run}))
     if stray.folder is not None:  # an app LPAM installed: its own folder, its own scripts
         assert run is not None
-        ctx.scripts.run(stray.name, ctx.layout.libpanda_apps / stray.folder, f"{what}.sh",
-                        stray.params, run=run)
+        folder = ctx.layout.libpanda_apps / stray.folder
+        ctx.scripts.run(stray.name, folder, f"{what}.sh", stray.params, run=run)
+        unit = _service_file(folder)
+        if what == "stop" and unit is not None:  # its stop.sh's exit code is not trusted
+            try:
+                _await(ctx, stray.name, unit, active=False, script="stop.sh")
+            except StepError:
+                replace(stray.model_copy(update={"pending": what, "run": None}))
+                raise
         if what == "uninstall":
             appdir.set_current(ctx.layout, None)
     elif stray.service is not None:
@@ -308,6 +329,15 @@ def _stray_script(ctx: Context, stray: Stray, what: Literal["stop", "uninstall"]
                            ctx.layout.generation_dir(gen.app, gen.generation))
     replace(None if what == "uninstall" else
             stray.model_copy(update={"stopped": True, "pending": None, "run": None}))
+
+
+def _service_file(folder: Path) -> str | None:
+    """The unit an LPAM app's `service` file names (read without following a link)."""
+    try:
+        words = read_bounded(folder / "service", limit=4096, follow_symlinks=False).split()
+        return check_unit_name(words[0].decode("utf-8", "replace")) if words else None
+    except (FileNotFoundError, ConfigError, ValueError):
+        return None
 
 
 def stop(step: Step, ctx: Context) -> None:

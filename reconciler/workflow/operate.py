@@ -70,20 +70,26 @@ def previous_good(ctx: Context) -> HistoryEntry:
                     hint="see `lpam history`; lpam keeps the last 3 good generations")
 
 
+def as_record(entry: HistoryEntry) -> AppRecord:
+    """A history entry as the installed app it was."""
+    return AppRecord(name=entry.app, repository=entry.repository, commit=entry.commit,
+                     tree=entry.tree, path=entry.path, params=dict(entry.params),
+                     generation=entry.generation, command=entry.command,
+                     launch=entry.launch, service=entry.service, user=entry.user)
+
+
 def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,
              progress: Progress) -> str:
-    """Make `entry` current again through journalled steps, and hold it there."""
-    record = AppRecord(name=entry.app, repository=entry.repository, commit=entry.commit,
-                       tree=entry.tree, path=entry.path, params=dict(entry.params),
-                       generation=entry.generation, command=entry.command,
-                       launch=entry.launch, service=entry.service, user=entry.user)
-    steps = app_steps(ctx.record, target_of(record), generations.present(ctx.layout),
-                      verify=False)
+    """Make `entry` current again through journalled steps, and hold it there. The hold is
+    written first: if lpam dies mid-rollback, the next plan finishes it (cli._prepare)."""
+    hold = Hold(desired=desired_fingerprint(desired), generation=entry.generation,
+                target=entry)
+    ctx.save(ctx.record.model_copy(update={"hold": hold}))
+    steps = app_steps(ctx.record, target_of(as_record(entry)),
+                      generations.present(ctx.layout), verify=False)
     if steps:
         execute(_plan(ctx, steps, f"roll back to {entry.app}@{entry.generation}",
                       ctx.clock()), ctx, progress=progress, record_result=False)
-    hold = Hold(desired=desired_fingerprint(desired), generation=entry.generation)
-    ctx.save(ctx.record.model_copy(update={"hold": hold}))
     return (f"Rolled back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}). "
             "It holds: plan and apply propose nothing until the desired state changes "
             "(or `lpam apply --release`).")

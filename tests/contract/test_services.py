@@ -277,6 +277,18 @@ def test_a_line_break_is_refused_at_install(world: World, where: str) -> None:
     assert world.services.state(NAME) == UnitState(NAME, known=False)
 
 
+@pytest.mark.parametrize("where", ["argv", "environment"])
+def test_check_refuses_what_install_would_and_changes_nothing(world: World, where: str) -> None:
+    world.services.check(world.unit())  # a good unit passes
+    unit = world.unit(argv=(*SLEEPER, "two\nlines")) if where == "argv" else \
+        world.unit(environment={"NOTE": "two\nlines"})
+    with pytest.raises(ServiceError, match="line break"):
+        world.services.check(unit)
+    assert world.services.state(NAME) == UnitState(NAME, known=False)
+    if world.real:  # a check is answered without starting the manager
+        assert supervisords(Layout(world.root)) == []
+
+
 # -- what only a real process manager can show -------------------------------------------
 
 

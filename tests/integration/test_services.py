@@ -299,3 +299,40 @@ def test_a_kill_during_a_rollback_converges_to_one_app(
 def test_services_shutdown_without_supervisord_says_so(lpam: Lpam) -> None:
     done = lpam("services", "shutdown")
     assert done.returncode == 0 and "No supervisord was running" in done.stdout
+
+
+def test_a_rollback_cut_off_by_a_kill_is_finished_by_the_next_apply(
+    lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
+) -> None:
+    builder = make_repo("versions.git")
+    builder.write("libpanda-apps.yaml", "apps:\n  - name: alpha\n")
+    add_app(builder, "alpha", extra={"install": 'touch "$LPAM_ROOT/v1-installing"; sleep 1.5'})
+    builder.commit("alpha v1: installs slowly")
+    builder.push()
+    url = git_daemon.url("versions.git")
+    lpam.desired(desired(url, "alpha"))
+    assert lpam("apply", "--yes").returncode == 0
+    first = lpam.status()["app"]["generation"]
+    add_app(builder, "alpha")
+    builder.commit("alpha v2")
+    builder.push()
+    assert lpam("apply", "--yes").returncode == 0
+    marker = lpam.root / "v1-installing"
+    marker.unlink()
+    proc = lpam.spawn("rollback", "--yes")
+    deadline = time.monotonic() + 60
+    while not marker.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert marker.exists()
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=10)
+    git_daemon.stop()  # finishing a rollback needs no network
+    plan = lpam("plan", "--offline")
+    assert "the rollback to alpha" in plan.stderr and "install:alpha@" in plan.stdout
+    done = lpam("apply", "--yes")
+    assert done.returncode == 0, done.stderr
+    app = lpam.status()["app"]
+    assert (app["generation"], app["status"]) == (first, "running")
+    assert lpam.events()[-2:] == ["alpha:install:", "alpha:start:"]
+    after = lpam("plan", "--offline", "--detailed-exitcode")
+    assert after.returncode == 0, after.stdout

@@ -414,3 +414,21 @@ def test_choice_refuses_unknown_managers(
     with pytest.raises(LpamError, match=f"{source}=.* names no service manager") as caught:
         choose(override=override, env=env, booted=tmp_path)
     assert caught.value.hint is not None and "systemd or supervisor" in caught.value.hint
+
+
+def test_check_verifies_the_unit_offline_and_asks_systemctl_nothing(
+    fake: Fake, layout: Layout, app_dir: Path, tmp_path: Path
+) -> None:
+    if shutil.which("systemd-analyze") is None:
+        pytest.skip("systemd-analyze is not installed")
+    services = SystemdServices(layout)
+    services.check(demo(app_dir))
+    assert fake.calls() == [] and not services.unit_file(NAME).exists()
+    with pytest.raises(ServiceError, match="not on PATH"):
+        services.check(demo(app_dir, argv=("no-such-program-here", "x")))
+    plain = tmp_path / "not-a-program"
+    plain.write_text("data\n")  # exists, but cannot be executed
+    with pytest.raises(ServiceError, match="does not verify") as info:
+        services.check(demo(app_dir, argv=(str(plain),)))
+    assert str(tmp_path / "lpam-verify") not in info.value.message
+    assert fake.calls() == []

@@ -78,7 +78,7 @@ def test_start_sh_exiting_0_is_not_running_when_its_unit_is_not_active(tmp_path:
     services = MemoryServices(known_units={"can"})  # start.sh "starts" it, but it never runs
     ctx, scripts = machine(tmp_path, services)
     install(ctx, args(service="can"))
-    with pytest.raises(HealthError, match="start.sh exited 0 but unit can is inactive"):
+    with pytest.raises(HealthError, match=r"start\.sh exited 0 but unit can is inactive"):
         run(StepKind.START, ctx, args(service="can"))
     app = read_record(ctx.layout).app
     assert app is not None and app.status == "starting"  # may be active: stopped on rollback
@@ -186,14 +186,14 @@ def test_a_unit_that_restarts_while_it_settles_fails_its_health_check(tmp_path: 
 def test_settle_zero_and_a_passing_health_command(tmp_path: Path) -> None:
     services = MemoryServices()
     ctx, scripts = machine(tmp_path, services, {"tick.py": ""})
-    values = {**args(command=["python3", "tick.py"], settle="0"),
-              "health_command": ["./healthy.sh"]}
+    values: dict[str, ArgValue] = {**args(command=["python3", "tick.py"], settle="0"),
+                                   "health_command": ["./healthy.sh"]}
     install(ctx, values)
     run(StepKind.START, ctx, values)
     run(StepKind.VERIFY, ctx, values)
     assert scripts.calls == ["x:check"]
     scripts.fail.add("x:check")
-    with pytest.raises(HealthError, match="health check `./healthy.sh` failed"):
+    with pytest.raises(HealthError, match=r"health check `\./healthy\.sh` failed"):
         run(StepKind.VERIFY, ctx, values)
 
 
@@ -208,3 +208,39 @@ def test_a_change_of_params_rewrites_the_unit_without_install(tmp_path: Path) ->
     assert app is not None and app.params == {"RATE": "9"}
     assert [c for c in services.calls if c[0] == "install"] == [
         ("install", "lpam-app-x"), ("install", "lpam-app-x")]
+
+
+def test_an_lpam_app_whose_unit_outlives_its_stop_sh_blocks_the_cutover(tmp_path: Path) -> None:
+    """Taking over LPAM's app: its own stop.sh runs, and its unit must then be inactive."""
+    from schemas.record import Stray
+
+    services = MemoryServices(known_units={"pandarecord"})
+    services.start("pandarecord")  # LPAM left it running
+    ctx, scripts = machine(tmp_path, services)
+    folder = ctx.layout.libpanda_apps / "pandarecord"
+    folder.mkdir(parents=True)
+    (folder / "stop.sh").write_text("true\n")  # exits 0, stops nothing
+    (folder / "service").write_text("pandarecord\n")
+    stray = Stray(name="pandarecord", generation="lpam", folder="pandarecord")
+    ctx.save(ctx.record.model_copy(update={"strays": [stray]}))
+    taken: dict[str, ArgValue] = {"app": "pandarecord", "generation": "lpam", "params": {},
+                                  "stray": "yes"}
+    with pytest.raises(StepError, match="unit pandarecord is still active"):
+        run(StepKind.STOP, ctx, taken)
+    [left] = read_record(ctx.layout).strays
+    assert not left.stopped and left.run is None  # not settled as stopped: stopped again
+    services.stop("pandarecord")
+    run(StepKind.STOP, ctx, taken)
+    assert read_record(ctx.layout).strays[0].stopped
+    assert scripts.calls == ["pandarecord:stop.sh", "pandarecord:stop.sh"]
+
+
+def test_a_unit_that_cannot_be_written_is_refused_while_preparing(tmp_path: Path) -> None:
+    """Checked at staging, while the old app still runs — not after it was stopped."""
+    services = MemoryServices()
+    ctx, _ = machine(tmp_path, services, {"tick.py": ""})
+    values: dict[str, ArgValue] = {**args(command=["python3", "tick.py"]),
+                                   "params": {"NOTE": "two\nlines"}}
+    with pytest.raises(StepError, match="x: unit lpam-app-x: the value of NOTE holds a line"):
+        run(StepKind.STAGE, ctx, values)
+    assert services.units == {} and services.calls == [("check", "lpam-app-x")]

@@ -36,17 +36,25 @@ class MemoryServices:
     calls: list[tuple[str, str]] = field(default_factory=list)
     next_pid: int = FIRST_PID
 
+    def check(self, unit: Unit) -> None:
+        self.calls.append(("check", _name(unit.name)))
+        self._refuse_unwritable(unit)
+
     def install(self, unit: Unit) -> None:
         name = _name(unit.name)
         self.calls.append(("install", name))
+        self._refuse_unwritable(unit)
+        self.units[name] = unit  # a running unit keeps running; the new one is for its next start
+        self.states.setdefault(name, _stopped(name))
+
+    def _refuse_unwritable(self, unit: Unit) -> None:
+        name = _name(unit.name)
         for what, value in [*((f"argument {a!r}", a) for a in unit.argv),
                             *((f"the value of {k}", v) for k, v in unit.environment.items())]:
             if any(c in value for c in "\n\r\x00"):
                 raise ServiceError(f"unit {name}: {what} holds a line break or NUL")
         if not unit.argv:
             raise ServiceError(f"unit {name}: no command to run")
-        self.units[name] = unit  # a running unit keeps running; the new one is for its next start
-        self.states.setdefault(name, _stopped(name))
 
     def uninstall(self, name: str) -> None:
         name = _name(name)

@@ -95,6 +95,15 @@ class SupervisorServices:
 
     # -- definitions --------------------------------------------------------------
 
+    def check(self, unit: Unit) -> None:
+        """The program section renders and its user exists; supervisord is not asked."""
+        name = _program(unit.name)
+        log = Path(os.path.abspath(unit.log or self.layout.app_logs / f"{name}.log"))
+        supervisor_conf.program(replace(unit, directory=Path(os.path.abspath(unit.directory))),
+                                name=name, log=log)
+        if unit.user is not None:
+            _user_exists(name, unit.user)
+
     def install(self, unit: Unit) -> None:
         name = _program(unit.name)
         log = Path(os.path.abspath(unit.log or self.layout.app_logs / f"{name}.log"))

@@ -27,6 +27,7 @@ import dataclasses
 import os
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 
 from reconciler.adapters.scripts import DEFAULT_PATH
@@ -65,16 +66,43 @@ class SystemdServices:
 
     # -- the port ---------------------------------------------------------------------
 
-    def install(self, unit: Unit) -> None:
+    def check(self, unit: Unit) -> None:
+        """The unit renders, and `systemd-analyze verify` (where it is installed) has
+        nothing to say about it: checked in a temporary folder, offline, before cutover."""
         name = _unit(unit.name)
+        text = self._render(unit)
+        analyze = shutil.which("systemd-analyze")
+        if analyze is None:
+            return
+        with tempfile.TemporaryDirectory(prefix="lpam-verify-") as tmp:
+            path = Path(tmp) / name
+            path.write_text(text)
+            try:
+                done = subprocess.run([analyze, "verify", str(path)], capture_output=True,
+                                      timeout=self.query_timeout, stdin=subprocess.DEVNULL)
+            except subprocess.TimeoutExpired:
+                raise ServiceError(f"systemd-analyze verify of {name} did not finish within "
+                                   f"{self.query_timeout:g} s") from None
+        said = _said(done.stderr).replace(str(path), name)
+        if done.returncode != 0 or said:
+            raise ServiceError(f"the systemd unit {name} does not verify: "
+                               f"{said or done.returncode}",
+                               hint="fix the app's command, user or parameters: lpam "
+                               "writes the unit from them")
+
+    def _render(self, unit: Unit) -> str:
         try:
-            text = render_unit(_resolved(unit))
+            return render_unit(_resolved(unit))
         except ValueError as exc:
             raise ServiceError(
-                f"cannot write the systemd unit {name}: {exc}",
+                f"cannot write the systemd unit {_unit(unit.name)}: {exc}",
                 hint="change the app's command or parameters so that they hold no such "
                 "value, then apply again",
             ) from None
+
+    def install(self, unit: Unit) -> None:
+        name = _unit(unit.name)
+        text = self._render(unit)
         path = self.unit_file(unit.name)
         changed = self._ours(path) != text.encode("utf-8")
         if changed:
