@@ -29,15 +29,14 @@ from pathlib import Path
 from typing import Literal
 
 from reconciler import generations
-from reconciler.errors import ConfigError, HealthError, ServiceError, StepError
+from reconciler.errors import HealthError, ServiceError, StepError
 from reconciler.execution.ports import Scripts, Services, Store
 from reconciler.generations import Generation
 from reconciler.layout import Layout
 from reconciler.legacy import appdir
 from reconciler.planning.model import GenerationKey, app_folder
-from reconciler.reading import read_bounded
 from reconciler.state import write_record
-from reconciler.unit import Unit, UnitState, check_unit_name, unit_name
+from reconciler.unit import Unit, UnitState, unit_name
 from schemas.plan import Step, StepKind
 from schemas.record import AppRecord, AppStatus, RepositoryRecord, StateRecord, Stray
 
@@ -305,7 +304,7 @@ def _stray_script(ctx: Context, stray: Stray, what: Literal["stop", "uninstall"]
         assert run is not None
         folder = ctx.layout.libpanda_apps / stray.folder
         ctx.scripts.run(stray.name, folder, f"{what}.sh", stray.params, run=run)
-        unit = _service_file(folder)
+        unit = appdir.service_of(folder)
         if what == "stop" and unit is not None:  # its stop.sh's exit code is not trusted
             try:
                 _await(ctx, stray.name, unit, active=False, script="stop.sh")
@@ -329,15 +328,6 @@ def _stray_script(ctx: Context, stray: Stray, what: Literal["stop", "uninstall"]
                            ctx.layout.generation_dir(gen.app, gen.generation))
     replace(None if what == "uninstall" else
             stray.model_copy(update={"stopped": True, "pending": None, "run": None}))
-
-
-def _service_file(folder: Path) -> str | None:
-    """The unit an LPAM app's `service` file names (read without following a link)."""
-    try:
-        words = read_bounded(folder / "service", limit=4096, follow_symlinks=False).split()
-        return check_unit_name(words[0].decode("utf-8", "replace")) if words else None
-    except (FileNotFoundError, ConfigError, ValueError):
-        return None
 
 
 def stop(step: Step, ctx: Context) -> None:

@@ -128,3 +128,15 @@ def lpam_current(layout: Layout) -> str | None:
     if folder.is_symlink() or not folder.is_dir():
         return None
     return name
+
+
+def service_of(folder: Path) -> str | None:
+    """The unit an LPAM app's `service` file names (read without following a link); None
+    when it has none or names no valid unit."""
+    from reconciler.unit import check_unit_name
+
+    try:
+        words = read_bounded(folder / "service", limit=4096, follow_symlinks=False).split()
+        return check_unit_name(words[0].decode("utf-8", "replace")) if words else None
+    except (FileNotFoundError, NotADirectoryError, ConfigError, ValueError):
+        return None

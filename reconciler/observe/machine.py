@@ -14,12 +14,14 @@ from typing import TYPE_CHECKING
 from reconciler import generations
 from reconciler.execution.journal import interrupted_steps
 from reconciler.layout import Layout
+from reconciler.legacy import appdir
 from reconciler.planning.model import Observed, RepoObserved, Targets
 from reconciler.state import read_record
 
 if TYPE_CHECKING:
     from reconciler.execution.ports import Services, Store
     from reconciler.unit import UnitState
+    from schemas.record import StateRecord
 
 
 def observe(layout: Layout, store: Store, targets: Targets,
@@ -44,7 +46,21 @@ def observe(layout: Layout, store: Store, targets: Targets,
         generations=generations.present(layout),
         interrupted=tuple(interrupted_steps(layout)),
         live=live_state(record.app.service if record.app else None, services),
+        stray_live=_taken_over(layout, record, services),
     )
+
+
+def _taken_over(layout: Layout, record: StateRecord,
+                services: Services | None) -> dict[str, UnitState]:
+    """The unit of each app LPAM installed, as its manager says (its `service` file)."""
+    found: dict[str, UnitState] = {}
+    for stray in record.strays:
+        if stray.folder is None or stray.stopped:
+            continue
+        state = live_state(appdir.service_of(layout.libpanda_apps / stray.folder), services)
+        if state is not None:
+            found[stray.name] = state
+    return found
 
 
 def live_state(unit: str | None, services: Services | None) -> UnitState | None:

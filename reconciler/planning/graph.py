@@ -40,7 +40,8 @@ def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> li
         if change.action is Action.DELETE and change.address.startswith("repository."):
             key = change.address.removeprefix("repository.")
             steps.append(step(StepKind.REMOVE, Phase.CLEANUP, key, key=key))
-    steps += app_steps(refreshed(observed.record, observed.live), targets.app,
+    steps += app_steps(refreshed(observed.record, observed.live, observed.stray_live),
+                       targets.app,
                        observed.generations)
     return order(steps)
 

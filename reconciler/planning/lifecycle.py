@@ -175,13 +175,15 @@ def target_of(app: AppRecord) -> AppTarget:
                      launch=app.launch, user=app.user, health=HealthTarget(settle_seconds=0))
 
 
-def refreshed(record: StateRecord, live: UnitState | None) -> StateRecord:
+def refreshed(record: StateRecord, live: UnitState | None,
+              stray_live: dict[str, UnitState] | None = None) -> StateRecord:
     """The record as the service manager sees the app now (Terraform's refresh: the record
     stays the prior state, this is the one planned from). An app recorded as running whose
     unit the manager knows and reports not active has stopped behind lpam's back (a crash,
     a reboot, someone's `systemctl stop`): it is planned as installed, so it is started.
     One recorded as installed whose unit is active may hold the bus: planned as running,
     so it is stopped before anything else is installed."""
+    record = strays_refreshed(record, stray_live or {})
     app = record.app
     if app is None or live is None or not live.known:
         return record
@@ -210,3 +212,12 @@ def operator_steps(record: StateRecord, action: str,
     else:
         record = record.model_copy(update={"app": app.model_copy(update={"held": False})})
     return app_steps(record, current, generations, verify=False)
+
+
+def strays_refreshed(record: StateRecord, live: dict[str, UnitState]) -> StateRecord:
+    """An app LPAM installed counts as running only if its unit is active: one whose unit
+    its manager reports inactive needs no stop, only its uninstall."""
+    strays = [s.model_copy(update={"stopped": True})
+              if s.name in live and live[s.name].known and not live[s.name].running else s
+              for s in record.strays]
+    return record.model_copy(update={"strays": strays}) if strays != record.strays else record

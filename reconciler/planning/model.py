@@ -125,6 +125,7 @@ class Observed:
     generations: frozenset[GenerationKey] = frozenset()
     interrupted: tuple[str, ...] = ()
     live: UnitState | None = None  # the installed app's unit, as its service manager says
+    stray_live: dict[str, UnitState] = field(default_factory=dict)  # LPAM's app's unit
 
 
 def generation_id(tree: str, how: dict[str, str]) -> str:

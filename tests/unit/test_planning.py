@@ -276,3 +276,27 @@ def test_live_state_refreshes_the_record_both_ways() -> None:
     # a unit this manager cannot know changes nothing: the scripts' word stands
     unknown = replace(observed(app_rec=running), live=UnitState("can", known=False))
     assert make_plan(Targets((repo(),), app()), unknown, now=NOW, lpam_version="t").steps == []
+
+
+def test_an_lpam_app_is_stopped_only_when_its_unit_may_run() -> None:
+    from dataclasses import replace
+
+    from reconciler.unit import UnitState
+    from schemas.record import Stray
+
+    lpam_app = Stray(name="pandarecord", generation="lpam", folder="pandarecord")
+    base = replace(observed(commit=None),
+                   record=StateRecord(strays=[lpam_app]))
+
+    def cutover(live: dict[str, UnitState]) -> list[StepKind]:
+        plan = make_plan(Targets((), app()), replace(base, stray_live=live), now=NOW,
+                         lpam_version="t")
+        return [s.kind for s in plan.steps if "pandarecord" in s.id]
+
+    assert cutover({}) == [StepKind.STOP, StepKind.UNINSTALL]  # nothing known: stop it
+    active = UnitState("pandarecord", known=True, active="active")
+    assert cutover({"pandarecord": active}) == [StepKind.STOP, StepKind.UNINSTALL]
+    inactive = UnitState("pandarecord", known=True, active="inactive")
+    assert cutover({"pandarecord": inactive}) == [StepKind.UNINSTALL]
+    unknown = UnitState("pandarecord", known=False)
+    assert cutover({"pandarecord": unknown}) == [StepKind.STOP, StepKind.UNINSTALL]
