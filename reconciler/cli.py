@@ -27,9 +27,9 @@ from reconciler.layout import Layout
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
     from reconciler.adapters.git import GitStore
+    from reconciler.execution.context import Context
     from reconciler.execution.lock import Lock
     from reconciler.execution.ports import Services
-    from reconciler.execution.steps import Context
     from reconciler.observe.targets import Fetch
     from schemas.desired import DesiredState
     from schemas.plan import Plan
@@ -426,7 +426,7 @@ def _execute(
 def _context(args: argparse.Namespace, layout: Layout, store: GitStore,
              lock: Lock) -> tuple[Context, Path]:
     from reconciler.adapters.scripts import ScriptRunner
-    from reconciler.execution.steps import Context
+    from reconciler.execution.context import Context
     from reconciler.state import read_record
 
     started = now()

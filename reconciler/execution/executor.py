@@ -18,8 +18,9 @@ from collections.abc import Callable
 
 from reconciler import generations
 from reconciler.errors import HealthError, LpamError, StepError
+from reconciler.execution.context import Context
 from reconciler.execution.journal import Journal
-from reconciler.execution.steps import RUNNERS, Context, prune
+from reconciler.execution.steps import RUNNERS, prune
 from reconciler.planning.lifecycle import app_steps, target_of
 from schemas.plan import Phase, Plan, Step
 from schemas.record import ApplyResult, AppRecord, HistoryEntry, Hold, LastApply

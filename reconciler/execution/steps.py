@@ -19,55 +19,20 @@ once it has certainly ended (the guard holds the apply lock until then).
 
 from __future__ import annotations
 
-import getpass
-import time
-import uuid
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from datetime import datetime
 from pathlib import Path
 from typing import Literal
 
 from reconciler import generations
 from reconciler.errors import HealthError, ServiceError, StepError
-from reconciler.execution.ports import Scripts, Services, Store
+from reconciler.execution.context import Context
+from reconciler.execution.supervision import await_unit, log_tail, settle, unit_for
 from reconciler.generations import Generation
-from reconciler.layout import Layout
 from reconciler.legacy import appdir
 from reconciler.planning.model import GenerationKey, app_folder
-from reconciler.state import write_record
-from reconciler.unit import Unit, UnitState, unit_name
+from reconciler.unit import unit_name
 from schemas.plan import Step, StepKind
-from schemas.record import AppRecord, AppStatus, RepositoryRecord, StateRecord, Stray
-
-SETTLE_POLL = 0.25  # seconds between looks at a unit while it settles
-UNIT_WAIT = 10.0  # how long a unit may take to become (in)active after its script ended
-LOG_LINES = 20
-
-
-def new_run() -> str:
-    return uuid.uuid4().hex
-
-
-@dataclass
-class Context:
-    """Everything a step may touch, passed explicitly."""
-
-    layout: Layout
-    store: Store
-    scripts: Scripts
-    services: Services
-    record: StateRecord
-    clock: Callable[[], datetime]
-    run_id: Callable[[], str] = field(default=new_run)
-    monotonic: Callable[[], float] = time.monotonic
-    sleep: Callable[[float], None] = time.sleep
-
-    def save(self, record: StateRecord) -> None:
-        self.record = write_record(self.layout, record)
-
-    def save_app(self, app: AppRecord | None) -> None:
-        self.save(self.record.model_copy(update={"app": app}))
+from schemas.record import AppRecord, AppStatus, RepositoryRecord, Stray
 
 
 def _arg(step: Step, name: str) -> str:
@@ -141,7 +106,7 @@ def stage(step: Step, ctx: Context) -> None:
                         command=None if gen.command is None else list(gen.command),
                         launch=gen.launch, user=_optional(step, "user"))
         try:
-            ctx.services.check(_unit(ctx, app, folder))
+            ctx.services.check(unit_for(ctx, app, folder))
         except ServiceError as exc:
             raise StepError(f"{gen.app}: {exc.message}", hint=exc.hint) from None
 
@@ -200,7 +165,7 @@ def _lifecycle(ctx: Context, app: AppRecord, what: What, during: AppStatus,
         _run(ctx, gen, f"{what}.sh", app.params, run)
         if app.service is not None and what in ("start", "stop"):
             try:
-                _await(ctx, app.name, app.service, active=what == "start",
+                await_unit(ctx, app.name, app.service, active=what == "start",
                        script=f"{what}.sh")
             except StepError:
                 # The script ended with 0, but the unit says it did not do its work: the
@@ -215,75 +180,14 @@ def _unit_work(ctx: Context, app: AppRecord, gen: Generation, what: What) -> Non
     """The lifecycle of a unit lpam writes: install writes it, uninstall removes it."""
     name = app.service or unit_name(gen.folder)
     if what == "install":
-        ctx.services.install(_unit(ctx, app, _place(ctx, gen)))
+        ctx.services.install(unit_for(ctx, app, _place(ctx, gen)))
     elif what == "start":
         ctx.services.start(name)
-        _await(ctx, app.name, name, active=True, script=None)
+        await_unit(ctx, app.name, name, active=True, script=None)
     elif what == "stop":
         ctx.services.stop(name)
     else:
         ctx.services.uninstall(name)
-
-
-def _unit(ctx: Context, app: AppRecord, place: Path) -> Unit:
-    """The unit of a scriptless app: its program found in its folder or on PATH, its
-    parameters as its environment, run as its user (no switch when that is lpam's own)."""
-    if app.command is not None:
-        argv = list(app.command)
-        if "/" in argv[0] or (place / argv[0]).is_file():
-            argv[0] = str(place / argv[0])
-    else:
-        assert app.launch is not None
-        package, launch_file = app.launch.split("/", 1)
-        argv = ["roslaunch", package, launch_file]
-    env = dict(app.params)
-    env.update(LPAM_ROOT=str(ctx.layout.root), LPAM_APP=app.name, LPAM_APP_DIR=str(place))
-    user = None if app.user in (None, getpass.getuser()) else app.user
-    folder = app_folder(app.path)
-    return Unit(name=unit_name(folder), argv=tuple(argv), directory=place, environment=env,
-                user=user, description=f"lpam app {app.name} ({app.generation})",
-                log=ctx.layout.logs / "apps" / f"{folder}.log")
-
-
-def _await(ctx: Context, app: str, unit: str, *, active: bool, script: str | None) -> UnitState:
-    """Wait (bounded) until the service manager reports `unit` (in)active. A unit this
-    manager cannot know leaves the scripts' word standing: the state shows unverified."""
-    deadline = ctx.monotonic() + UNIT_WAIT
-    while True:
-        state = ctx.services.state(unit)
-        if not state.known or state.running == active:
-            return state
-        if ctx.monotonic() >= deadline:
-            break
-        ctx.sleep(SETTLE_POLL)
-    if not active:
-        raise StepError(
-            f"{app}: {script or 'the stop'} ended but unit {unit} is still active after "
-            f"{UNIT_WAIT:g} s", details=_log_tail(ctx, unit),
-            hint="the unit must stop before another app may have the CAN bus; see `lpam "
-            "logs` and fix the app's stop.sh",
-        )
-    # An app that does not come up is a failed health check: the apply rolls back.
-    now = state.describe().removeprefix(f"unit {unit} ")
-    raise HealthError(
-        f"{app}: {script + ' exited 0 but ' if script else ''}unit {unit} is {now}, not "
-        f"active, {UNIT_WAIT:g} s after it was started", details=_log_tail(ctx, unit),
-        hint="see the app's output above; the unit named in the app's `service` file must "
-        "run once start.sh ends" if script else "see the app's output above: it exits "
-        "right after it starts",
-    )
-
-
-def _log_tail(ctx: Context, unit: str | None) -> list[str]:
-    """The unit's last lines of output, for the error that explains its failure; logs
-    are a courtesy there, so failing to read them is not an error of its own."""
-    if unit is None:
-        return []
-    try:
-        lines = ctx.services.logs(unit, LOG_LINES)
-    except Exception:
-        return []
-    return [f"{unit}: {line}" for line in lines[-LOG_LINES:]]
 
 
 def _stray(step: Step, ctx: Context) -> Stray | None:
@@ -307,7 +211,7 @@ def _stray_script(ctx: Context, stray: Stray, what: Literal["stop", "uninstall"]
         unit = appdir.service_of(folder)
         if what == "stop" and unit is not None:  # its stop.sh's exit code is not trusted
             try:
-                _await(ctx, stray.name, unit, active=False, script="stop.sh")
+                await_unit(ctx, stray.name, unit, active=False, script="stop.sh")
             except StepError:
                 replace(stray.model_copy(update={"pending": what, "run": None}))
                 raise
@@ -380,7 +284,7 @@ def configure(step: Step, ctx: Context) -> None:
     app = _installed(step, ctx).model_copy(
         update={"params": _params(step), "user": _optional(step, "user")})
     if app.scriptless and app.status not in ("installing", "uninstalling"):
-        ctx.services.install(_unit(ctx, app, _place(ctx, _meta(ctx, app))))
+        ctx.services.install(unit_for(ctx, app, _place(ctx, _meta(ctx, app))))
     ctx.save_app(app)
 
 
@@ -395,10 +299,10 @@ def verify(step: Step, ctx: Context) -> None:
     app = _installed(step, ctx)
     health = step.args.get("health")
     settings = health if isinstance(health, dict) else {}
-    settle = float(settings.get("settle_seconds", "0"))
+    seconds = float(settings.get("settle_seconds", "0"))
     timeout = float(settings.get("timeout_seconds", "10"))
-    if app.service is not None and settle > 0:
-        _settle(ctx, app, app.service, settle)
+    if app.service is not None and seconds > 0:
+        settle(ctx, app, app.service, seconds)
     command = _argv(step, "health_command")
     if command is not None:
         place = _place(ctx, _meta(ctx, app))
@@ -408,29 +312,7 @@ def verify(step: Step, ctx: Context) -> None:
             raise HealthError(
                 f"{app.name}: its health check `{' '.join(command)}` failed: {output}",
                 hint="fix the app (or its health settings) and apply again",
-                details=_log_tail(ctx, app.service))
-
-
-def _settle(ctx: Context, app: AppRecord, unit: str, seconds: float) -> None:
-    first = ctx.services.state(unit)
-    if not first.known:
-        return  # unverifiable here (a systemd unit under supervisord): the scripts' word
-    deadline = ctx.monotonic() + seconds
-    state = first
-    while True:
-        problem = None
-        if not state.running:
-            problem = f"{state.describe()}"
-        elif state.restarts > first.restarts or state.pid != first.pid:
-            problem = f"unit {unit} restarted (pid {first.pid} → {state.pid})"
-        if problem is not None:
-            raise HealthError(
-                f"{app.name} did not stay up for {seconds:g} s after it started: {problem}",
-                hint="fix the app and apply again", details=_log_tail(ctx, unit))
-        if ctx.monotonic() >= deadline:
-            return
-        ctx.sleep(min(SETTLE_POLL, max(deadline - ctx.monotonic(), 0)))
-        state = ctx.services.state(unit)
+                details=log_tail(ctx, app.service))
 
 
 def prune(ctx: Context, *, keep: int = 3) -> None:

@@ -17,8 +17,8 @@ from datetime import datetime
 
 from reconciler import __version__, generations
 from reconciler.errors import LpamError
+from reconciler.execution.context import Context
 from reconciler.execution.executor import execute
-from reconciler.execution.steps import Context
 from reconciler.planning.lifecycle import app_steps, operator_steps, target_of
 from reconciler.planning.model import GenerationKey
 from reconciler.planning.plan import fingerprint

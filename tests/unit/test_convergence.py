@@ -27,8 +27,8 @@ from reconciler import generations
 from reconciler.adapters.memory import Crash, MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
 from reconciler.errors import StepError
+from reconciler.execution.context import Context
 from reconciler.execution.executor import execute
-from reconciler.execution.steps import Context
 from reconciler.layout import Layout
 from reconciler.observe.machine import observe
 from reconciler.planning.model import AppTarget, RepoTarget, Targets, generation_id

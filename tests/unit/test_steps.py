@@ -16,7 +16,8 @@ import pytest
 from reconciler.adapters.memory import MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
 from reconciler.errors import StepError
-from reconciler.execution.steps import RUNNERS, Context
+from reconciler.execution.context import Context
+from reconciler.execution.steps import RUNNERS
 from reconciler.layout import Layout
 from reconciler.planning.lifecycle import step
 from reconciler.planning.model import generation_id

@@ -1,0 +1,43 @@
+"""What every step may touch, passed explicitly: the ports, the record, the clock.
+
+The state record is saved through the context, so that a step's intent and outcome are
+on disk (atomically) before and after its work.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime
+
+from reconciler.execution.ports import Scripts, Services, Store
+from reconciler.layout import Layout
+from reconciler.state import write_record
+from schemas.record import AppRecord, StateRecord
+
+
+def new_run() -> str:
+    return uuid.uuid4().hex
+
+
+@dataclass
+class Context:
+    """Everything a step may touch, passed explicitly."""
+
+    layout: Layout
+    store: Store
+    scripts: Scripts
+    services: Services
+    record: StateRecord
+    clock: Callable[[], datetime]
+    run_id: Callable[[], str] = field(default=new_run)
+    monotonic: Callable[[], float] = time.monotonic
+    sleep: Callable[[float], None] = time.sleep
+
+    def save(self, record: StateRecord) -> None:
+        self.record = write_record(self.layout, record)
+
+    def save_app(self, app: AppRecord | None) -> None:
+        self.save(self.record.model_copy(update={"app": app}))

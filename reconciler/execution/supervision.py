@@ -1,0 +1,106 @@
+"""Watching the app's unit through the service manager: the unit lpam writes for a
+scriptless app, waiting (bounded) for a unit to come up or go down after its script or
+start, the settle of the health check, and the unit's last output for error messages.
+
+A script's exit code is not trusted (the field's scripts never use `set -e`): these
+answers are what lpam records. A unit this manager cannot know (a systemd unit asked of
+supervisord) leaves the scripts' word standing, shown as unverified.
+"""
+
+from __future__ import annotations
+
+import getpass
+from pathlib import Path
+
+from reconciler.errors import HealthError, StepError
+from reconciler.execution.context import Context
+from reconciler.planning.model import app_folder
+from reconciler.unit import Unit, UnitState, unit_name
+from schemas.record import AppRecord
+
+SETTLE_POLL = 0.25  # seconds between looks at a unit while it settles
+UNIT_WAIT = 10.0  # how long a unit may take to become (in)active after its script ended
+LOG_LINES = 20
+
+
+def unit_for(ctx: Context, app: AppRecord, place: Path) -> Unit:
+    """The unit of a scriptless app: its program found in its folder or on PATH, its
+    parameters as its environment, run as its user (no switch when that is lpam's own)."""
+    if app.command is not None:
+        argv = list(app.command)
+        if "/" in argv[0] or (place / argv[0]).is_file():
+            argv[0] = str(place / argv[0])
+    else:
+        assert app.launch is not None
+        package, launch_file = app.launch.split("/", 1)
+        argv = ["roslaunch", package, launch_file]
+    env = dict(app.params)
+    env.update(LPAM_ROOT=str(ctx.layout.root), LPAM_APP=app.name, LPAM_APP_DIR=str(place))
+    user = None if app.user in (None, getpass.getuser()) else app.user
+    folder = app_folder(app.path)
+    return Unit(name=unit_name(folder), argv=tuple(argv), directory=place, environment=env,
+                user=user, description=f"lpam app {app.name} ({app.generation})",
+                log=ctx.layout.logs / "apps" / f"{folder}.log")
+
+
+def await_unit(ctx: Context, app: str, unit: str, *, active: bool, script: str | None) -> UnitState:
+    """Wait (bounded) until the service manager reports `unit` (in)active. A unit this
+    manager cannot know leaves the scripts' word standing: the state shows unverified."""
+    deadline = ctx.monotonic() + UNIT_WAIT
+    while True:
+        state = ctx.services.state(unit)
+        if not state.known or state.running == active:
+            return state
+        if ctx.monotonic() >= deadline:
+            break
+        ctx.sleep(SETTLE_POLL)
+    if not active:
+        raise StepError(
+            f"{app}: {script or 'the stop'} ended but unit {unit} is still active after "
+            f"{UNIT_WAIT:g} s", details=log_tail(ctx, unit),
+            hint="the unit must stop before another app may have the CAN bus; see `lpam "
+            "logs` and fix the app's stop.sh",
+        )
+    # An app that does not come up is a failed health check: the apply rolls back.
+    now = state.describe().removeprefix(f"unit {unit} ")
+    raise HealthError(
+        f"{app}: {script + ' exited 0 but ' if script else ''}unit {unit} is {now}, not "
+        f"active, {UNIT_WAIT:g} s after it was started", details=log_tail(ctx, unit),
+        hint="see the app's output above; the unit named in the app's `service` file must "
+        "run once start.sh ends" if script else "see the app's output above: it exits "
+        "right after it starts",
+    )
+
+
+def log_tail(ctx: Context, unit: str | None) -> list[str]:
+    """The unit's last lines of output, for the error that explains its failure; logs
+    are a courtesy there, so failing to read them is not an error of its own."""
+    if unit is None:
+        return []
+    try:
+        lines = ctx.services.logs(unit, LOG_LINES)
+    except Exception:
+        return []
+    return [f"{unit}: {line}" for line in lines[-LOG_LINES:]]
+
+
+def settle(ctx: Context, app: AppRecord, unit: str, seconds: float) -> None:
+    first = ctx.services.state(unit)
+    if not first.known:
+        return  # unverifiable here (a systemd unit under supervisord): the scripts' word
+    deadline = ctx.monotonic() + seconds
+    state = first
+    while True:
+        problem = None
+        if not state.running:
+            problem = f"{state.describe()}"
+        elif state.restarts > first.restarts or state.pid != first.pid:
+            problem = f"unit {unit} restarted (pid {first.pid} → {state.pid})"
+        if problem is not None:
+            raise HealthError(
+                f"{app.name} did not stay up for {seconds:g} s after it started: {problem}",
+                hint="fix the app and apply again", details=log_tail(ctx, unit))
+        if ctx.monotonic() >= deadline:
+            return
+        ctx.sleep(min(SETTLE_POLL, max(deadline - ctx.monotonic(), 0)))
+        state = ctx.services.state(unit)
