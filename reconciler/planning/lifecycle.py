@@ -146,9 +146,13 @@ def _list(value: tuple[str, ...] | None) -> list[str] | None:
 
 
 def _recorded(app: AppRecord) -> dict[str, ArgValue]:
+    """The installed app as step arguments: everything a reinstall needs to run it the way
+    it ran (a scriptless app's unit must not come back as a script app)."""
     return {"app": app.name, "generation": app.generation, "repository": app.repository,
             "commit": app.commit, "path": app.path, "tree": app.tree,
-            "params": dict(app.params)}
+            "params": dict(app.params), "service": app.service,
+            "command": None if app.command is None else list(app.command),
+            "launch": app.launch, "user": app.user}
 
 
 def _wanted(new: AppTarget, gen: str) -> dict[str, ArgValue]:
