@@ -92,6 +92,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="kill an app script running longer than this (default 600)")
     apply.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
     apply.add_argument(*SERVICES, **SERVICES_OPTIONS)
+    apply.add_argument("--keep-generations", type=_at_least_one, default=3, metavar="N",
+                       help="good generations kept on disk for `lpam rollback` (default 3)")
     apply.add_argument("--release", action="store_true",
                        help="end a rollback's hold and apply the desired state again")
 
@@ -143,6 +145,13 @@ def _parser() -> argparse.ArgumentParser:
                      help="LPAM's folder (default: <root>/etc/libpanda.d)")
     imp.add_argument("-o", "--output", type=Path, help="write here instead of printing")
     return parser
+
+
+def _at_least_one(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError("keep at least 1 (the installed generation)")
+    return value
 
 
 def _layout(args: argparse.Namespace) -> Layout:
@@ -412,7 +421,7 @@ def _execute(
 
     ctx, log = _context(args, layout, store, lock)
     print()
-    execute(plan, ctx, progress=print)
+    execute(plan, ctx, progress=print, keep=args.keep_generations)
     app = ctx.record.app
     where = f"{app.name} {app.status}" if app else "no app"
     if app is not None and app.service is not None and app.status == "running":

@@ -29,9 +29,10 @@ KEEP_GENERATIONS = 3
 
 
 def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
-            record_result: bool = True) -> None:
+            record_result: bool = True, keep: int = KEEP_GENERATIONS) -> None:
     """Run `plan`; `record_result` writes how it ended and its generation to the record
-    (an apply's; an operator's stop or start is not an apply)."""
+    (an apply's; an operator's stop or start is not an apply). `keep` good generations
+    stay on disk for `lpam rollback`."""
     journal = Journal(ctx.layout, apply_id=str(uuid.uuid4()), plan=plan.fingerprint)
     journal.open(ctx.clock(), warn=progress)
     ctx.save(ctx.record)  # as read: settled, strays adopted — before any exit file is pruned
@@ -56,9 +57,9 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
                 details=exc.details,
             ) from exc
     journal.close(ctx.clock())
-    if record_result:
+    if record_result:  # an operator's start, stop or rollback makes no generation
         _finish(ctx, "applied", None)
-    prune(ctx, keep=KEEP_GENERATIONS)
+        prune(ctx, keep=keep)
 
 
 def _hold_after(ctx: Context, result: ApplyResult) -> Hold | None:

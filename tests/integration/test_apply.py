@@ -117,6 +117,10 @@ def test_switch_app_stops_and_uninstalls_before_installing(
     # ... but only the installed app is where LPAM's scripts look for apps
     linked = sorted(p.name for p in (lpam.root / "etc/libpanda.d/apps").iterdir())
     assert linked == ["beta"]
+    lpam.desired(desired(url, "alpha"))
+    assert lpam("apply", "--yes", "--keep-generations", "1").returncode == 0
+    generations = sorted(p.name for p in (lpam.root / "var/lib/lpam/generations").iterdir())
+    assert generations == ["alpha"]  # only the installed one, as asked
 
 
 def test_app_null_uninstalls_and_removed_repository_is_deleted(
