@@ -283,12 +283,11 @@ def _held_plan(layout: Layout, store: GitStore, services: Services, record: Stat
     from reconciler.planning.lifecycle import target_of
     from reconciler.planning.model import Observed, RepoTarget, Targets
     from reconciler.planning.plan import make_plan
-    from reconciler.workflow.operate import as_record
 
     target = record.hold.target if record.hold is not None else None
     if target is not None:
         repos = tuple(RepoTarget(r.key, r.url, r.ref, r.commit) for r in record.repositories)
-        targets = Targets(repos, target_of(as_record(target)))
+        targets = Targets(repos, target_of(target.installed()))
         plan = make_plan(targets, observe(layout, store, targets, services), now=now(),
                          lpam_version=__version__)
         if plan.steps:

@@ -216,7 +216,7 @@ def _cell(value: object) -> str:
         return "yes" if value else "no"
     if value is None:
         return "-"
-    text = "".join(c if c.isprintable() else "?" for c in str(value))
+    text = _printable(str(value))
     return text if len(text) <= CELL_LIMIT else text[: CELL_LIMIT - 3] + "..."
 
 

@@ -124,6 +124,20 @@ class HistoryEntry(BaseModel):
     time: str
     result: ApplyResult
 
+    @classmethod
+    def of(cls, app: AppRecord, *, time: str, result: ApplyResult) -> HistoryEntry:
+        return cls(generation=app.generation, app=app.name, repository=app.repository,
+                   commit=app.commit, path=app.path, tree=app.tree, params=dict(app.params),
+                   command=app.command, launch=app.launch, service=app.service,
+                   user=app.user, time=time, result=result)
+
+    def installed(self) -> AppRecord:
+        """This generation as the installed app it was (what a rollback returns to)."""
+        return AppRecord(name=self.app, repository=self.repository, commit=self.commit,
+                         tree=self.tree, path=self.path, params=dict(self.params),
+                         generation=self.generation, command=self.command,
+                         launch=self.launch, service=self.service, user=self.user)
+
 
 class Hold(BaseModel):
     """A rollback holds until the desired state changes (`lpam apply --release` ends it)."""

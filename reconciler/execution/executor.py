@@ -83,11 +83,8 @@ def _finish(ctx: Context, result: ApplyResult, reason: str | None, *,
         if outcome == "applied" and last is not None and \
                 (last.generation, last.params) == (app.generation, app.params):
             continue
-        history.append(HistoryEntry(
-            generation=app.generation, app=app.name, repository=app.repository,
-            commit=app.commit, path=app.path, tree=app.tree, params=dict(app.params),
-            command=app.command, launch=app.launch, service=app.service, user=app.user,
-            time=when, result="rolled back" if outcome == "rolled back" else "applied"))
+        history.append(HistoryEntry.of(
+            app, time=when, result="rolled back" if outcome == "rolled back" else "applied"))
     ctx.save(ctx.record.model_copy(update={
         "last_apply": LastApply(time=when, result=result, reason=reason),
         "history": history[-20:],

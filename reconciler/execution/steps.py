@@ -100,15 +100,19 @@ def stage(step: Step, ctx: Context) -> None:
     gen = _wanted(step)
     folder = generations.stage(ctx.layout, ctx.store, gen)
     if gen.scriptless:
-        app = AppRecord(name=gen.app, repository=gen.repository, commit=gen.commit,
-                        tree=gen.tree, path=gen.path, params=gen.params,
-                        generation=gen.generation,
-                        command=None if gen.command is None else list(gen.command),
-                        launch=gen.launch, user=_optional(step, "user"))
         try:
-            ctx.services.check(unit_for(ctx, app, folder))
+            ctx.services.check(unit_for(ctx, _record(gen, _optional(step, "user")), folder))
         except ServiceError as exc:
             raise StepError(f"{gen.app}: {exc.message}", hint=exc.hint) from None
+
+
+def _record(gen: Generation, user: str | None) -> AppRecord:
+    """The generation as the installed app it becomes (status: installed)."""
+    return AppRecord(name=gen.app, repository=gen.repository, commit=gen.commit,
+                     tree=gen.tree, path=gen.path, params=gen.params,
+                     generation=gen.generation, service=gen.service,
+                     command=None if gen.command is None else list(gen.command),
+                     launch=gen.launch, user=user)
 
 
 def _generation(ctx: Context, app: str, generation: str, fallback: Generation) -> Generation:
@@ -270,10 +274,7 @@ def install(step: Step, ctx: Context) -> None:
         )
     if not ctx.layout.generation_dir(gen.app, gen.generation).is_dir():
         raise StepError(f"{gen.app}: generation {gen.generation} was not staged")
-    app = AppRecord(name=gen.app, repository=gen.repository, commit=gen.commit, tree=gen.tree,
-                    path=gen.path, params=gen.params, generation=gen.generation,
-                    service=gen.service, command=None if gen.command is None
-                    else list(gen.command), launch=gen.launch, user=_optional(step, "user"))
+    app = _record(gen, _optional(step, "user"))
     appdir.set_current(ctx.layout, gen.folder)
     _lifecycle(ctx, app, "install", "installing", "installed")
 

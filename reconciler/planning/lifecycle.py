@@ -147,12 +147,9 @@ def _list(value: tuple[str, ...] | None) -> list[str] | None:
 
 def _recorded(app: AppRecord) -> dict[str, ArgValue]:
     """The installed app as step arguments: everything a reinstall needs to run it the way
-    it ran (a scriptless app's unit must not come back as a script app)."""
-    return {"app": app.name, "generation": app.generation, "repository": app.repository,
-            "commit": app.commit, "path": app.path, "tree": app.tree,
-            "params": dict(app.params), "service": app.service,
-            "command": None if app.command is None else list(app.command),
-            "launch": app.launch, "user": app.user}
+    it ran (a scriptless app's unit must not come back as a script app). Its generation is
+    the recorded one: an older lpam derived ids differently."""
+    return _wanted(target_of(app), app.generation)
 
 
 def _wanted(new: AppTarget, gen: str) -> dict[str, ArgValue]:

@@ -24,7 +24,7 @@ from reconciler.planning.model import GenerationKey
 from reconciler.planning.plan import fingerprint
 from schemas.desired import DesiredState
 from schemas.plan import Plan, Step
-from schemas.record import AppRecord, HistoryEntry, Hold
+from schemas.record import HistoryEntry, Hold
 
 Progress = Callable[[str], None]
 
@@ -70,14 +70,6 @@ def previous_good(ctx: Context) -> HistoryEntry:
                     hint="see `lpam history`; lpam keeps the last 3 good generations")
 
 
-def as_record(entry: HistoryEntry) -> AppRecord:
-    """A history entry as the installed app it was."""
-    return AppRecord(name=entry.app, repository=entry.repository, commit=entry.commit,
-                     tree=entry.tree, path=entry.path, params=dict(entry.params),
-                     generation=entry.generation, command=entry.command,
-                     launch=entry.launch, service=entry.service, user=entry.user)
-
-
 def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,
              progress: Progress) -> str:
     """Make `entry` current again through journalled steps, and hold it there. The hold is
@@ -85,7 +77,7 @@ def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,
     hold = Hold(desired=desired_fingerprint(desired), generation=entry.generation,
                 target=entry)
     ctx.save(ctx.record.model_copy(update={"hold": hold}))
-    steps = app_steps(ctx.record, target_of(as_record(entry)),
+    steps = app_steps(ctx.record, target_of(entry.installed()),
                       generations.present(ctx.layout), verify=False)
     if steps:
         execute(_plan(ctx, steps, f"roll back to {entry.app}@{entry.generation}",
