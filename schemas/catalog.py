@@ -11,9 +11,18 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictStr, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictStr,
+    field_validator,
+    model_validator,
+)
 
-from schemas.names import check_app_name, check_owner_repo, check_ref
+from schemas.dependency import check_debian_package, check_requirement
+from schemas.names import check_app_name, check_owner_repo, check_ref, check_url
 from schemas.service import Health, check_argv, check_launch
 
 CATALOG_FILE = "libpanda-apps.yaml"
@@ -28,18 +37,42 @@ class RawRosRepository(_Strict):
     owner: StrictStr
     repo: StrictStr
     branch_or_hash: StrictStr | None = None
+    url: StrictStr | None = None
 
     @field_validator("branch_or_hash")
     @classmethod
     def _ref(cls, value: str | None) -> str | None:
         return None if value is None else check_ref(value)
 
+    @field_validator("url")
+    @classmethod
+    def _url(cls, value: str | None) -> str | None:
+        if value is not None and "://" not in value:
+            raise ValueError("a ROS repository's url must be a URL (https://, git://, …)")
+        return None if value is None else check_url(value)
+
 
 class RawDependency(_Strict):
-    """One `{apt: NAME}` or `{pip3: NAME}` entry."""
+    """One `{apt: NAME}` or `{pip3: REQUIREMENT}` entry."""
 
     apt: StrictStr | None = None
     pip3: StrictStr | None = None
+
+    @field_validator("apt")
+    @classmethod
+    def _apt(cls, value: str | None) -> str | None:
+        return None if value is None else check_debian_package(value)
+
+    @field_validator("pip3")
+    @classmethod
+    def _pip3(cls, value: str | None) -> str | None:
+        return None if value is None else check_requirement(value)
+
+    @model_validator(mode="after")
+    def _one(self) -> RawDependency:
+        if (self.apt is None) == (self.pip3 is None):
+            raise ValueError("give exactly one of `apt: PACKAGE` or `pip3: REQUIREMENT`")
+        return self
 
 
 class RawProperties(_Strict):
@@ -101,6 +134,12 @@ class RosRepository(_Strict):
     owner: str
     repo: str
     ref: str | None = Field(default=None, description="branch or commit; None: default branch")
+    url: str | None = Field(default=None, description="where to fetch it; default GitHub")
+
+    @property
+    def source(self) -> str:
+        """The URL git is given, before the desired state's mirrors are applied."""
+        return self.url or f"https://github.com/{self.owner}/{self.repo}"
 
 
 class CatalogApp(_Strict):
@@ -157,12 +196,18 @@ def normalise(raw: RawCatalog) -> Catalog:
             owns = bool(app.properties.owns_panda)
         elif isinstance(app.properties, list):
             owns = any(bool(flag.owns_panda) for flag in app.properties)
+        names: set[str] = set()
         for r in ros:
             try:
                 check_owner_repo(f"{r.owner}/{r.repo}")
             except ValueError as exc:
                 raise CatalogFault(f"app {app.name}: ROS repository: {exc}",
                                    ("apps", index)) from None
+            if r.repo in names:  # both would be checked out as src/<repo>
+                raise CatalogFault(f"app {app.name}: two ROS repositories are named "
+                                   f"{r.repo!r}; each is checked out as src/{r.repo}",
+                                   ("apps", index, "ros_repositories"))
+            names.add(r.repo)
         apps.append(
             CatalogApp(
                 name=app.name,
@@ -172,7 +217,8 @@ def normalise(raw: RawCatalog) -> Catalog:
                 apt=[d.apt for d in deps if d.apt],
                 pip3=[d.pip3 for d in deps if d.pip3],
                 ros_repositories=[
-                    RosRepository(owner=r.owner, repo=r.repo, ref=r.branch_or_hash) for r in ros
+                    RosRepository(owner=r.owner, repo=r.repo, ref=r.branch_or_hash, url=r.url)
+                    for r in ros
                 ],
                 command=app.command,
                 launch=app.launch,

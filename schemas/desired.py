@@ -9,6 +9,8 @@ app:                                           # or `app: pandarecord`, or `app:
   name: pandarecord
   repository: jmscslgroup/libpanda-default-apps  # only when two repositories offer the name
   params: {RATE_HZ: "10"}
+mirrors: {"https://github.com/": "git://192.168.4.1/"}   # optional: git's insteadOf
+ros: {workspace: /home/circles/catkin_ws, user: circles}  # optional: these are defaults
 ```
 """
 
@@ -20,6 +22,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictStr, field_validator, model_validator
 
 from schemas.names import (
+    URL_SCHEMES,
     check_app_name,
     check_owner_repo,
     check_param_name,
@@ -144,6 +147,35 @@ class AppSpec(BaseModel):
         return value
 
 
+class RosSpec(BaseModel):
+    """The ROS catkin workspace apps' `ros_repositories` are built in."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    workspace: StrictStr | None = Field(
+        default=None, description="absolute path of the catkin workspace (under --root); "
+        "default: the ROS user's ~/catkin_ws, where the field's scripts look")
+    user: StrictStr | None = Field(
+        default=None, description="user catkin_make runs as; default: the libpanda user "
+        "named in /etc/libpanda.d/libpanda_usr, else root")
+
+    @field_validator("workspace")
+    @classmethod
+    def _workspace(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        parts = value.split("/")
+        if not value.startswith("/") or ".." in parts or len(value) > 255 or "\x00" in value:
+            raise ValueError("ros.workspace must be an absolute path without '..' "
+                             "(e.g. /home/circles/catkin_ws)")
+        return value
+
+    @field_validator("user")
+    @classmethod
+    def _user(cls, value: str | None) -> str | None:
+        return None if value is None else check_user(value)
+
+
 class DesiredState(BaseModel):
     """What the operator wants the vehicle to have."""
 
@@ -152,6 +184,29 @@ class DesiredState(BaseModel):
     version: Literal[1] = Field(description="document version; this is version 1")
     repositories: list[RepositorySpec] = Field(default_factory=list)
     app: AppSpec | None = None
+    mirrors: dict[StrictStr, StrictStr] = Field(
+        default_factory=dict, description="URL prefix → replacement, as git's "
+        "url.<base>.insteadOf: app and ROS repositories are fetched from the replacement")
+    ros: RosSpec = Field(default_factory=RosSpec)
+
+    @field_validator("mirrors")
+    @classmethod
+    def _mirrors(cls, value: dict[str, str]) -> dict[str, str]:
+        for prefix, replacement in value.items():
+            for text in (prefix, replacement):
+                if "://" not in text or not text.startswith(URL_SCHEMES):
+                    raise ValueError(f"mirror {text!r}: both sides must be URL prefixes "
+                                     f"({', '.join(URL_SCHEMES)})")
+                check_url(text.rstrip("/") or text)
+        return value
+
+    def mirrored(self, url: str) -> str:
+        """`url` with the longest matching mirror prefix replaced (git's insteadOf rule)."""
+        matches = [p for p in self.mirrors if url.startswith(p)]
+        if not matches:
+            return url
+        prefix = max(matches, key=len)
+        return self.mirrors[prefix] + url[len(prefix):]
 
     @field_validator("app", mode="before")
     @classmethod

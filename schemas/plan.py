@@ -53,6 +53,9 @@ class Phase(StrEnum):
 
 class StepKind(StrEnum):
     CHECKOUT = "checkout"
+    APT = "apt"  # install the app's missing apt packages (before the cutover)
+    PIP = "pip"  # the virtual environment of the app's pip requirements
+    BUILD = "build"  # the catkin build of the app's ROS repositories at their commits
     STAGE = "stage"
     STOP = "stop"
     UNINSTALL = "uninstall"
