@@ -127,6 +127,11 @@ class ServiceError(LpamError):
     or could not be reached or started."""
 
 
+class DependencyError(StepError):
+    """An app's apt packages, pip requirements or ROS workspace could not be prepared.
+    Raised before the cutover: the running app is untouched."""
+
+
 class HealthError(StepError):
     """The started app did not stay healthy; the apply rolls back to the previous app."""
 

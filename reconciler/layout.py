@@ -151,6 +151,17 @@ class Layout:
         """LPAM's own copies of app folders, kept when lpam puts its link in their place."""
         return self.var / "replaced"
 
+    @property
+    def venvs(self) -> Path:
+        """Virtual environments of apps' pip requirements, one per set of requirements."""
+        return self.var / "venvs"
+
+    def home(self, user: str) -> Path:
+        """A user's home as the field's scripts know it (`/home/<user>`, `/root` for root)."""
+        if not user or user != slug(user):
+            raise ValueError(f"not a user name: {user!r}")
+        return self.root / "root" if user == "root" else self.root / "home" / user
+
     def repository_dir(self, key: str) -> Path:
         """The checkout of the repository known as `key` (e.g. `owner/name`)."""
         return self.repositories / slug(key)

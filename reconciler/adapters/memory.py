@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from reconciler.errors import GitError, RefNotFoundError, StepError
+from reconciler.errors import DependencyError, GitError, RefNotFoundError, StepError
+from reconciler.execution.ports import Log
 from reconciler.layout import Layout
 
 Folder = tuple[str, dict[str, str]]  # (tree hash, file name → text)
@@ -144,3 +145,34 @@ class MemoryScripts:
             self.active.discard(app)
         elif script == "uninstall.sh" and f"{app}:uninstall.sh" not in self.fail:
             self.installed.discard(app)
+
+
+@dataclass
+class MemoryPackages:
+    """The `Packages` port as sets: `installed` names are present, `available` ones can be
+    installed, `after_update` ones only once the package lists were updated (a car offline
+    for weeks), anything else is not found."""
+
+    installed: set[str] = field(default_factory=set)
+    available: set[str] = field(default_factory=set)
+    after_update: set[str] = field(default_factory=set)
+    calls: list[list[str]] = field(default_factory=list)
+
+    def missing(self, names: Sequence[str]) -> list[str]:
+        return [name for name in names if name.split(":")[0] not in self.installed]
+
+    def install(self, names: Sequence[str], *, log: Log) -> None:
+        if not names:
+            return
+        for attempt in range(2):
+            self.calls.append(["install", *names])
+            unknown = [n for n in names if n.split(":")[0] not in self.available]
+            if not unknown:
+                self.installed.update(name.split(":")[0] for name in names)
+                return
+            if attempt == 0:
+                self.calls.append(["update"])
+                self.available |= self.after_update
+        raise DependencyError(
+            f"apt-get could not install {', '.join(names)}: E: Unable to locate package "
+            f"{unknown[0]}", details=[f"E: Unable to locate package {unknown[0]}"])

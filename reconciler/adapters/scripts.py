@@ -94,13 +94,13 @@ class ScriptRunner:
         try:
             code = proc.wait(timeout=self.timeout)
         except subprocess.TimeoutExpired:
-            _stop_group(proc)
+            stop_group(proc)
             raise StepError(
                 f"{app}: {script} did not finish within {self.timeout:g} s and was killed",
                 hint=f"see {self.log}; raise --script-timeout if it needs longer",
             ) from None
         except BaseException:  # Ctrl-C, SIGTERM: the script must not outlive lpam
-            _stop_group(proc)
+            stop_group(proc)
             raise
         finally:
             if self.note is not None:
@@ -142,10 +142,10 @@ class ScriptRunner:
         try:
             code = proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
-            _stop_group(proc)
+            stop_group(proc)
             return False, f"it did not finish within {timeout:g} s"
         except BaseException:
-            _stop_group(proc)
+            stop_group(proc)
             raise
         return code == 0, f"exit code {code} (output in {self.log})"
 
@@ -157,7 +157,7 @@ class ScriptRunner:
             os.close(fd)
 
 
-def _stop_group(proc: subprocess.Popen[bytes]) -> None:
+def stop_group(proc: subprocess.Popen[bytes]) -> None:
     """TERM the script's process group, then KILL whatever is left after a grace period."""
     for sig, wait in ((signal.SIGTERM, GRACE_SECONDS), (signal.SIGKILL, None)):
         with contextlib.suppress(ProcessLookupError):

@@ -8,6 +8,8 @@ One contract suite (tests/contract/) holds every implementation to the same beha
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -82,3 +84,78 @@ class Services(Protocol):
     def state(self, name: str) -> UnitState: ...
 
     def logs(self, name: str, lines: int = 20) -> list[str]: ...
+
+
+Log = Callable[[str], None]
+"""Where an adapter sends the output of a long command (apt, pip, catkin_make), line by
+line: the apply log, and the terminal's progress line."""
+
+
+class Packages(Protocol):
+    """The system's package manager (apt): which packages are missing, and installing them.
+
+    `install` installs exactly the names given, in one batch, and raises DependencyError
+    naming the packages and the cause when it cannot."""
+
+    def missing(self, names: Sequence[str]) -> list[str]: ...
+
+    def install(self, names: Sequence[str], *, log: Log) -> None: ...
+
+
+class PythonEnvs(Protocol):
+    """Virtual environments for apps' pip requirements, one per set of requirements (every
+    generation and app asking for the same set shares it), created with the system's
+    site-packages visible so that apt's and ROS's Python stays importable.
+
+    `unsatisfied` says which requirements the environment for that set would lack, read
+    from distribution metadata (never by importing); `ensure` creates the environment if
+    needed and installs what is unsatisfied (DependencyError naming the requirement and
+    the tail of pip's output when it cannot); `collect` removes environments not in `keep`.
+    """
+
+    def location(self, requirements: Sequence[str]) -> Path: ...
+
+    def ready(self, requirements: Sequence[str]) -> bool: ...
+
+    def unsatisfied(self, requirements: Sequence[str]) -> list[str]: ...
+
+    def ensure(self, requirements: Sequence[str], *, log: Log) -> Path: ...
+
+    def collect(self, keep: set[Path]) -> None: ...
+
+
+class Workspace(Protocol):
+    """The ROS catkin workspace (`ros: {workspace, user}`): one immutable build per set of
+    source commits, so that a rollback returns to a build that worked.
+
+    A build lives in `space(key)`: `src/` (filled by the caller, before `build`, with the
+    repositories exported at their commits), then `build/` and `devel/` from `catkin_make`
+    run as the ROS user. `built(key)` is true only after a build succeeded. `link` points
+    the workspace's own `src/<repo>` at a build's sources, where the field's scripts look.
+    """
+
+    root: Path
+
+    def space(self, key: str) -> Path: ...
+
+    def built(self, key: str) -> bool: ...
+
+    def prepare(self, key: str) -> Path: ...
+
+    def build(self, key: str, *, log: Log) -> None: ...
+
+    def setup_script(self, key: str) -> Path: ...
+
+    def link(self, key: str, repos: Sequence[str]) -> None: ...
+
+    def collect(self, keep: set[str]) -> None: ...
+
+
+@dataclass(frozen=True)
+class DependencyPorts:
+    """The three ports an app's dependencies are prepared through. A workspace is made
+    for the path and user the desired state names (`ros:`), so it is a factory."""
+
+    packages: Packages
+    envs: PythonEnvs
+    workspace: Callable[[Path, str], Workspace]
