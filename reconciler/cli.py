@@ -29,7 +29,7 @@ if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fas
     from reconciler.adapters.git import GitStore
     from reconciler.execution.context import Context
     from reconciler.execution.lock import Lock
-    from reconciler.execution.ports import Services
+    from reconciler.execution.ports import DependencyPorts, Services
     from reconciler.observe.targets import Fetch
     from schemas.desired import DesiredState
     from schemas.plan import Plan
@@ -259,8 +259,8 @@ def _prepare(
     if hold is not None:  # a rollback holds: nothing to resolve, no network needed
         return store, _held_plan(layout, store, services, record, hold)
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
-                      default_user=libpanda_user(layout))
-    observed = observe(layout, store, targets, services)
+                      default_user=libpanda_user(layout), root=layout.root)
+    observed = observe(layout, store, targets, services, _dependency_ports(layout))
     if busy is not None:
         print(f"note: an apply is in progress ({busy}); this plan shows the machine as it "
               "stands now, part-way through it", file=sys.stderr)
@@ -288,7 +288,8 @@ def _held_plan(layout: Layout, store: GitStore, services: Services, record: Stat
     if target is not None:
         repos = tuple(RepoTarget(r.key, r.url, r.ref, r.commit) for r in record.repositories)
         targets = Targets(repos, target_of(target.installed()))
-        plan = make_plan(targets, observe(layout, store, targets, services), now=now(),
+        plan = make_plan(targets, observe(layout, store, targets, services,
+                                          _dependency_ports(layout)), now=now(),
                          lpam_version=__version__)
         if plan.steps:
             print(f"note: the rollback to {target.app} ({target.generation}) was cut off; "
@@ -444,8 +445,54 @@ def _context(args: argparse.Namespace, layout: Layout, store: GitStore,
         services=_services(args, layout),
         scripts=ScriptRunner(root=layout.root, log=log, runs=layout.runs,
                              timeout=args.script_timeout, lock_fd=lock.fd, note=lock.note),
+        deps=_dependency_ports(layout), log=ProgressLog(log),
     )
     return ctx, log
+
+
+def _dependency_ports(layout: Layout) -> DependencyPorts:
+    """apt, pip (environments made from $LPAM_PYTHON, default the system's python3) and
+    catkin: the ports an app's dependencies are prepared through."""
+    from reconciler.adapters.apt import AptPackages
+    from reconciler.adapters.catkin import CatkinWorkspace
+    from reconciler.adapters.pythonenv import VenvPythonEnvs
+    from reconciler.execution.ports import DependencyPorts
+
+    return DependencyPorts(
+        packages=AptPackages(), envs=VenvPythonEnvs(layout.venvs,
+                                                    python=os.environ.get("LPAM_PYTHON")),
+        workspace=CatkinWorkspace)
+
+
+class ProgressLog:
+    """The output of a long step (apt, pip, catkin_make): every line to the apply log, and
+    on the terminal, at most every few seconds, how long it has run and its latest line."""
+
+    EVERY = 5.0
+
+    def __init__(self, path: Path) -> None:
+        import time
+
+        self._path = path
+        self._clock = time.monotonic
+        self._started = self._shown = self._clock()
+
+    def __call__(self, line: str) -> None:
+        from reconciler.reading import open_append
+
+        fd = open_append(self._path)
+        try:
+            os.write(fd, (line + "\n").encode("utf-8", "replace"))
+        finally:
+            os.close(fd)
+        now_ = self._clock()
+        if line.startswith("$ "):  # a new command: its clock starts
+            self._started = self._shown = now_
+            print(f"      {line[:100]}", flush=True)
+        elif now_ - self._shown >= self.EVERY:
+            self._shown = now_
+            shown = "".join(c if c.isprintable() else "?" for c in line)[:80]
+            print(f"      … {now_ - self._started:.0f} s: {shown}", flush=True)
 
 
 def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:

@@ -49,6 +49,11 @@ class Generation:
     command: tuple[str, ...] | None = None  # scriptless app: how its unit runs
     launch: str | None = None
     service: str | None = None  # the unit whose state says whether it runs
+    venv: str | None = None  # the virtual environment of its pip requirements
+    ros: dict[str, str] = field(default_factory=dict)  # ROS repository → commit
+    ros_build: str | None = None  # the workspace build it runs with (a rollback returns to it)
+    ros_workspace: str | None = None
+    ros_user: str | None = None
 
     @property
     def folder(self) -> str:
@@ -72,7 +77,9 @@ def stage(layout: Layout, store: Store, gen: Generation) -> Path:
                 "commit": gen.commit, "path": gen.path, "tree": gen.tree,
                 "params": gen.params, "scripts": list(scripts),
                 "command": None if gen.command is None else list(gen.command),
-                "launch": gen.launch, "service": gen.service}
+                "launch": gen.launch, "service": gen.service, "venv": gen.venv,
+                "ros": gen.ros, "ros_build": gen.ros_build,
+                "ros_workspace": gen.ros_workspace, "ros_user": gen.ros_user}
         write_atomic(meta, json.dumps(body, indent=2, sort_keys=True) + "\n")
     return dest
 
@@ -113,6 +120,7 @@ def read_meta(path: Path) -> Generation | None:
         scripts = data.get("scripts")
         command = data.get("command")
         launch, service = data.get("launch"), data.get("service")
+        ros = data.get("ros") or {}
         return Generation(
             app=str(data["app"]), generation=str(data["generation"]),
             repository=str(data.get("repository", "")), commit=str(data.get("commit", "")),
@@ -122,10 +130,18 @@ def read_meta(path: Path) -> Generation | None:
             command=None if command is None else tuple(str(a) for a in command),
             launch=None if launch is None else str(launch),
             service=None if service is None else str(service),
+            venv=_text(data.get("venv")), ros={str(k): str(v) for k, v in ros.items()},
+            ros_build=_text(data.get("ros_build")),
+            ros_workspace=_text(data.get("ros_workspace")),
+            ros_user=_text(data.get("ros_user")),
         )
     except (FileNotFoundError, ConfigError, ValueError, KeyError, TypeError, AttributeError,
             RecursionError):
         return None
+
+
+def _text(value: object) -> str | None:
+    return None if value is None else str(value)
 
 
 def on_disk(layout: Layout) -> Iterator[tuple[str, str]]:

@@ -12,7 +12,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
 
-from reconciler.execution.ports import Scripts, Services, Store
+from reconciler.errors import StepError
+from reconciler.execution.ports import DependencyPorts, Log, Scripts, Services, Store
 from reconciler.layout import Layout
 from reconciler.state import write_record
 from schemas.record import AppRecord, StateRecord
@@ -35,6 +36,14 @@ class Context:
     run_id: Callable[[], str] = field(default=new_run)
     monotonic: Callable[[], float] = time.monotonic
     sleep: Callable[[float], None] = time.sleep
+    deps: DependencyPorts | None = None
+    log: Log = field(default=lambda line: None)  # long steps' output: the apply log
+
+    def dependencies(self) -> DependencyPorts:
+        if self.deps is None:  # a caller that plans dependencies must give their ports
+            raise StepError("this apply cannot prepare dependencies (no ports given); this "
+                            "is a bug in lpam")
+        return self.deps
 
     def save(self, record: StateRecord) -> None:
         self.record = write_record(self.layout, record)

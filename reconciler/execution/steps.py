@@ -19,14 +19,16 @@ once it has certainly ended (the guard holds the apply lock until then).
 
 from __future__ import annotations
 
+import getpass
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Literal
 
 from reconciler import generations
-from reconciler.errors import HealthError, ServiceError, StepError
+from reconciler.errors import DependencyError, GitError, HealthError, ServiceError, StepError
 from reconciler.execution.context import Context
-from reconciler.execution.supervision import await_unit, log_tail, settle, unit_for
+from reconciler.execution.supervision import await_unit, log_tail, runtime, settle, unit_for
 from reconciler.generations import Generation
 from reconciler.legacy import appdir
 from reconciler.planning.model import GenerationKey, app_folder
@@ -79,29 +81,86 @@ def _argv(step: Step, name: str) -> tuple[str, ...] | None:
     return tuple(value) if isinstance(value, list) else None
 
 
-def _wanted(step: Step) -> Generation:
+def _wanted(step: Step, ctx: Context) -> Generation:
     command, launch = _argv(step, "command"), _optional(step, "launch")
     path = _arg(step, "path")
     service = _optional(step, "service")
     if command is not None or launch is not None:
         service = unit_name(app_folder(path))
+    pip = _argv(step, "pip")
+    ros = step.args.get("ros")
     return Generation(
         app=_arg(step, "app"), generation=_arg(step, "generation"),
         repository=_arg(step, "repository"), commit=_arg(step, "commit"),
         path=path, tree=_arg(step, "tree"), params=_params(step),
         command=command, launch=launch, service=service,
+        venv=str(ctx.dependencies().envs.location(pip)) if pip else None,
+        ros=dict(ros) if isinstance(ros, dict) else {},
+        ros_build=_optional(step, "build"), ros_workspace=_optional(step, "ros_workspace"),
+        ros_user=_optional(step, "ros_user"),
     )
+
+
+def apt(step: Step, ctx: Context) -> None:
+    """Install the app's apt packages that are still missing, in one batch."""
+    packages = ctx.dependencies().packages
+    wanted = list(_argv(step, "packages") or ())
+    _prepared(step, lambda: packages.install(packages.missing(wanted), log=ctx.log))
+
+
+def pip(step: Step, ctx: Context) -> None:
+    """The virtual environment of the app's requirements, created and completed."""
+    envs = ctx.dependencies().envs
+    _prepared(step, lambda: envs.ensure(list(_argv(step, "requirements") or ()), log=ctx.log))
+
+
+def build(step: Step, ctx: Context) -> None:
+    """The app's ROS repositories exported at their commits into a build space of their
+    own, and built with catkin_make as the ROS user. A space that was built is reused."""
+    key = _arg(step, "build")
+    workspace = ctx.dependencies().workspace(Path(_arg(step, "workspace")), _arg(step, "user"))
+    if workspace.built(key):
+        return
+    commits, keys, urls = (_mapping(step, name) for name in ("ros", "ros_keys", "ros_urls"))
+
+    def work() -> None:
+        src = workspace.prepare(key)
+        for name, commit in sorted(commits.items()):
+            if not ctx.store.has_commit(keys[name], commit):
+                ctx.store.fetch(keys[name], urls[name])
+            ctx.store.export_folder(keys[name], commit, "", src / name)
+        workspace.build(key, log=ctx.log)
+
+    _prepared(step, work)
+
+
+def _prepared(step: Step, work: Callable[[], object]) -> None:
+    """Run a preparation step's work; its errors name the app."""
+    try:
+        work()
+    except (DependencyError, GitError) as exc:
+        app = _arg(step, "app")
+        message = exc.message if exc.message.startswith(app) else f"{app}: {exc.message}"
+        raise DependencyError(message, hint=exc.hint, details=exc.details) from None
+
+
+def _mapping(step: Step, name: str) -> dict[str, str]:
+    value = step.args.get(name)
+    if not isinstance(value, dict):
+        raise StepError(f"step {step.id} lacks {name}; the plan is malformed")
+    return dict(value)
 
 
 def stage(step: Step, ctx: Context) -> None:
     """Copy the app folder at its commit into an immutable generation directory; for a
     scriptless app, have the service manager check the unit it will run (a unit that
     cannot run is refused now, while the old app still runs, not after it was stopped)."""
-    gen = _wanted(step)
+    gen = _wanted(step, ctx)
     folder = generations.stage(ctx.layout, ctx.store, gen)
     if gen.scriptless:
         try:
-            ctx.services.check(unit_for(ctx, _record(gen, _optional(step, "user")), folder))
+            ctx.services.check(unit_for(ctx, _record(gen, _optional(step, "user")), folder,
+                                        runtime(ctx, gen)))
         except ServiceError as exc:
             raise StepError(f"{gen.app}: {exc.message}", hint=exc.hint) from None
 
@@ -120,6 +179,17 @@ def _generation(ctx: Context, app: str, generation: str, fallback: Generation) -
     return meta if meta is not None else fallback
 
 
+def _with_runtime(ctx: Context, gen: Generation) -> Generation:
+    """`gen` as a step wants it, with the runtime its staging recorded when the step does
+    not say (a rollback's steps come from the state record, which keeps no environment or
+    ROS build: the generation's metadata does, so it returns to the build that worked)."""
+    meta = generations.read_meta(ctx.layout.generation_meta(gen.app, gen.generation))
+    if meta is None or gen.venv is not None or gen.ros_build is not None:
+        return gen
+    return replace(gen, venv=meta.venv, ros=meta.ros, ros_build=meta.ros_build,
+                   ros_workspace=meta.ros_workspace, ros_user=meta.ros_user)
+
+
 def _place(ctx: Context, gen: Generation) -> Path:
     """The generation's folder (restored from git first if it went missing), reachable at
     `/etc/libpanda.d/apps/<folder>`: that path, where the field's scripts expect it."""
@@ -128,10 +198,11 @@ def _place(ctx: Context, gen: Generation) -> Path:
 
 
 def _run(ctx: Context, gen: Generation, script: str, params: dict[str, str], run: str) -> None:
-    """Run one script of `gen` in its place."""
+    """Run one script of `gen` in its place, in its runtime environment."""
     place = _place(ctx, gen)
     required = gen.scripts is not None and script in gen.scripts
-    ctx.scripts.run(gen.app, place, script, params, run=run, required=required)
+    ctx.scripts.run(gen.app, place, script, {**params, **runtime(ctx, gen).environment},
+                    run=run, required=required)
 
 
 def _installed(step: Step, ctx: Context) -> AppRecord:
@@ -184,7 +255,7 @@ def _unit_work(ctx: Context, app: AppRecord, gen: Generation, what: What) -> Non
     """The lifecycle of a unit lpam writes: install writes it, uninstall removes it."""
     name = app.service or unit_name(gen.folder)
     if what == "install":
-        ctx.services.install(unit_for(ctx, app, _place(ctx, gen)))
+        ctx.services.install(unit_for(ctx, app, _place(ctx, gen), runtime(ctx, gen)))
     elif what == "start":
         ctx.services.start(name)
         await_unit(ctx, app.name, name, active=True, script=None)
@@ -262,7 +333,7 @@ def uninstall(step: Step, ctx: Context) -> None:
 
 
 def install(step: Step, ctx: Context) -> None:
-    gen = _wanted(step)
+    gen = _with_runtime(ctx, _wanted(step, ctx))
     current = ctx.record.app
     redo = (current is not None and (current.name, current.generation) == (gen.app, gen.generation)
             and current.status in ("installing", "uninstalling"))
@@ -276,6 +347,11 @@ def install(step: Step, ctx: Context) -> None:
         raise StepError(f"{gen.app}: generation {gen.generation} was not staged")
     app = _record(gen, _optional(step, "user"))
     appdir.set_current(ctx.layout, gen.folder)
+    if gen.ros_build is not None and gen.ros_workspace is not None:
+        # the field's scripts look for the sources in the workspace's own src/
+        user = gen.ros_user or getpass.getuser()
+        workspace = ctx.dependencies().workspace(Path(gen.ros_workspace), user)
+        workspace.link(gen.ros_build, sorted(gen.ros))
     _lifecycle(ctx, app, "install", "installing", "installed")
 
 
@@ -285,7 +361,8 @@ def configure(step: Step, ctx: Context) -> None:
     app = _installed(step, ctx).model_copy(
         update={"params": _params(step), "user": _optional(step, "user")})
     if app.scriptless and app.status not in ("installing", "uninstalling"):
-        ctx.services.install(unit_for(ctx, app, _place(ctx, _meta(ctx, app))))
+        gen = _meta(ctx, app)
+        ctx.services.install(unit_for(ctx, app, _place(ctx, gen), runtime(ctx, gen)))
     ctx.save_app(app)
 
 
@@ -328,6 +405,7 @@ def prune(ctx: Context, *, keep: int = 3) -> None:
     if record.app is not None:
         kept.add(GenerationKey.of(record.app.name, record.app.generation))
     generations.prune(ctx.layout, kept)
+    _collect_dependencies(ctx)
     pending = {f"{r}.exit" for r in [record.app.run if record.app else None,
                                       *(s.run for s in record.strays)] if r}
     if ctx.layout.runs.is_dir():
@@ -336,8 +414,27 @@ def prune(ctx: Context, *, keep: int = 3) -> None:
                 result.unlink(missing_ok=True)
 
 
+def _collect_dependencies(ctx: Context) -> None:
+    """Virtual environments and ROS builds no kept generation runs with are removed; the
+    ones kept are what `lpam rollback` returns to without a rebuild."""
+    if ctx.deps is None:
+        return
+    kept = generations.installed_on_disk(ctx.layout)
+    ctx.deps.envs.collect({Path(g.venv) for g in kept if g.venv is not None})
+    builds: dict[tuple[str, str], set[str]] = {}
+    for g in kept:
+        if g.ros_workspace is not None and g.ros_build is not None:
+            owner = (g.ros_workspace, g.ros_user or getpass.getuser())
+            builds.setdefault(owner, set()).add(g.ros_build)
+    for (path, user), keys in builds.items():
+        ctx.deps.workspace(Path(path), user).collect(keys)
+
+
 RUNNERS: dict[StepKind, Callable[[Step, Context], None]] = {
     StepKind.CHECKOUT: checkout,
+    StepKind.APT: apt,
+    StepKind.PIP: pip,
+    StepKind.BUILD: build,
     StepKind.REMOVE: remove,
     StepKind.STAGE: stage,
     StepKind.STOP: stop,

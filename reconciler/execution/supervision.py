@@ -10,10 +10,13 @@ supervisord) leaves the scripts' word standing, shown as unverified.
 from __future__ import annotations
 
 import getpass
+from dataclasses import dataclass, field
 from pathlib import Path
 
+from reconciler.adapters.scripts import DEFAULT_PATH
 from reconciler.errors import HealthError, StepError
 from reconciler.execution.context import Context
+from reconciler.generations import Generation
 from reconciler.planning.model import app_folder
 from reconciler.unit import Unit, UnitState, unit_name
 from schemas.record import AppRecord
@@ -23,9 +26,41 @@ UNIT_WAIT = 10.0  # how long a unit may take to become (in)active after its scri
 LOG_LINES = 20
 
 
-def unit_for(ctx: Context, app: AppRecord, place: Path) -> Unit:
-    """The unit of a scriptless app: its program found in its folder or on PATH, its
-    parameters as its environment, run as its user (no switch when that is lpam's own)."""
+@dataclass(frozen=True)
+class Runtime:
+    """What a generation runs inside besides its folder: the virtual environment of its pip
+    requirements (its `bin` first on PATH) and the setup file of its ROS build."""
+
+    environment: dict[str, str] = field(default_factory=dict)
+    ros_setup: Path | None = None
+
+
+def runtime(ctx: Context, gen: Generation) -> Runtime:
+    env: dict[str, str] = {}
+    if gen.venv is not None:
+        env["VIRTUAL_ENV"] = gen.venv
+        env["PATH"] = f"{gen.venv}/bin:{DEFAULT_PATH}"
+    setup = None
+    if gen.ros_build is not None and gen.ros_workspace is not None:
+        workspace = ctx.dependencies().workspace(Path(gen.ros_workspace),
+                                                 gen.ros_user or getpass.getuser())
+        setup = workspace.setup_script(gen.ros_build)
+        env["LPAM_ROS_SETUP"] = str(setup)
+        # roslaunch keeps its logs in $ROS_HOME: the ROS user's ~/.ros, beside the workspace
+        env["ROS_HOME"] = str(Path(gen.ros_workspace).parent / ".ros")
+    return Runtime(env, setup)
+
+
+ROS_WRAPPER = 'source "$1" || exit 1; shift; exec "$@"'
+"""Runs a program inside a ROS build's environment (its devel/setup.bash), from an argument
+list: the setup file and the program are arguments of the shell, never part of its code."""
+
+
+def unit_for(ctx: Context, app: AppRecord, place: Path, run: Runtime | None = None) -> Unit:
+    """The unit of a scriptless app: its program found in its folder or on PATH (inside its
+    ROS build's environment when it has one: roslaunch needs it), its parameters and
+    runtime as its environment, run as its user (no switch when that is lpam's own)."""
+    run = run or Runtime()
     if app.command is not None:
         argv = list(app.command)
         if "/" in argv[0] or (place / argv[0]).is_file():
@@ -34,7 +69,10 @@ def unit_for(ctx: Context, app: AppRecord, place: Path) -> Unit:
         assert app.launch is not None
         package, launch_file = app.launch.split("/", 1)
         argv = ["roslaunch", package, launch_file]
+    if run.ros_setup is not None:
+        argv = ["bash", "-c", ROS_WRAPPER, "lpam-ros", str(run.ros_setup), *argv]
     env = dict(app.params)
+    env.update(run.environment)
     env.update(LPAM_ROOT=str(ctx.layout.root), LPAM_APP=app.name, LPAM_APP_DIR=str(place))
     user = None if app.user in (None, getpass.getuser()) else app.user
     folder = app_folder(app.path)

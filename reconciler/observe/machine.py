@@ -9,23 +9,24 @@ working tree on every plan would make a no-op plan pay for what it does not need
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler import generations
 from reconciler.execution.journal import interrupted_steps
 from reconciler.layout import Layout
 from reconciler.legacy import appdir
-from reconciler.planning.model import Observed, RepoObserved, Targets
+from reconciler.planning.model import AppTarget, DepsObserved, Observed, RepoObserved, Targets
 from reconciler.state import read_record
 
 if TYPE_CHECKING:
-    from reconciler.execution.ports import Services, Store
+    from reconciler.execution.ports import DependencyPorts, Services, Store
     from reconciler.unit import UnitState
     from schemas.record import StateRecord
 
 
 def observe(layout: Layout, store: Store, targets: Targets,
-            services: Services | None = None) -> Observed:
+            services: Services | None = None, deps: DependencyPorts | None = None) -> Observed:
     record = read_record(layout)
     wanted = {t.key: t for t in targets.repositories}
     keys = sorted(set(wanted) | {r.key for r in record.repositories})
@@ -47,6 +48,32 @@ def observe(layout: Layout, store: Store, targets: Targets,
         interrupted=tuple(interrupted_steps(layout)),
         live=live_state(record.app.service if record.app else None, services),
         stray_live=_taken_over(layout, record, services),
+        deps=dependencies(layout, targets.app, record, deps),
+    )
+
+
+def dependencies(layout: Layout, app: AppTarget | None, record: StateRecord,
+                 ports: DependencyPorts | None) -> DepsObserved | None:
+    """The desired app's dependencies as the machine has them now (read-only: dpkg-query,
+    distribution metadata, the workspace's build markers)."""
+    if app is None or ports is None:
+        return None
+    wanted = app.deps
+    ros_built = True
+    if wanted.ros and wanted.workspace is not None:
+        key = wanted.ros_build
+        workspace = ports.workspace(Path(wanted.workspace.path), wanted.workspace.user)
+        ros_built = key is not None and workspace.built(key)
+    installed: dict[str, str] = {}
+    if record.app is not None:
+        meta = generations.read_meta(
+            layout.generation_meta(record.app.name, record.app.generation))
+        installed = dict(meta.ros) if meta is not None else {}
+    return DepsObserved(
+        apt_missing=tuple(ports.packages.missing(wanted.apt)) if wanted.apt else (),
+        pip_unsatisfied=tuple(ports.envs.unsatisfied(wanted.pip)) if wanted.pip else (),
+        venv_ready=ports.envs.ready(wanted.pip) if wanted.pip else True,
+        ros_built=ros_built, ros_installed=installed,
     )
 
 

@@ -16,23 +16,30 @@ exact — how depends on the `Fetch` mode:
 
 from __future__ import annotations
 
+import getpass
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from enum import Enum
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 from reconciler.documents import parse_catalog
-from reconciler.errors import CatalogError, RefNotFoundError
+from reconciler.errors import CatalogError, GitError, RefNotFoundError
+from reconciler.layout import Layout
 from reconciler.planning.model import (
     UNKNOWN,
     AppTarget,
+    Deps,
     HealthTarget,
     RepoTarget,
+    RosSource,
     Targets,
+    WorkspaceTarget,
     short,
 )
 from reconciler.unit import check_unit_name
-from schemas.catalog import CATALOG_FILE, Catalog, CatalogApp
+from schemas.catalog import CATALOG_FILE, Catalog, CatalogApp, RosRepository
 from schemas.desired import AppSpec, DesiredState, RepositorySpec
 from schemas.names import is_hex_commit, redact
 from schemas.service import DEFAULT_HEALTH_TIMEOUT, DEFAULT_SETTLE_SECONDS, Health
@@ -41,6 +48,9 @@ if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
 
 FETCH_WORKERS = 4
+ROS_KEY_PREFIX = "@ros/"  # store keys of ROS repositories: never an app repository's key
+_In = TypeVar("_In")
+_Out = TypeVar("_Out")
 
 
 class Fetch(Enum):
@@ -53,19 +63,38 @@ class Fetch(Enum):
 
 def resolve(
     desired: DesiredState, *, base_dir: Path, store: GitStore, fetch: Fetch,
-    default_user: str | None = None,
+    default_user: str | None = None, root: Path = Path("/"),
 ) -> Targets:
     """Desired state → Targets; raises before any change if a ref does not exist.
-    `default_user` runs a scriptless app that names no `user:` (the libpanda user)."""
+    `default_user` runs a scriptless app that names no `user:` (the libpanda user) and
+    owns the ROS workspace; `root` is lpam's --root, under which the workspace lies."""
     specs = desired.repositories
-    if len(specs) > 1 and fetch is not Fetch.OFFLINE:
-        with ThreadPoolExecutor(max_workers=min(FETCH_WORKERS, len(specs))) as pool:
-            repos = list(pool.map(lambda s: _resolve_repo(s, base_dir, store, fetch), specs))
-    else:
-        repos = [_resolve_repo(s, base_dir, store, fetch) for s in specs]
-    app = (_resolve_app(desired, repos, store, default_user)
+    repos = _parallel(lambda s: _resolve_repo(s, base_dir, store, fetch, desired), specs,
+                      fetch)
+    workspace = workspace_target(desired, root, default_user)
+    app = (_resolve_app(desired, repos, store, default_user, fetch, workspace)
            if desired.app is not None else None)
     return Targets(repositories=tuple(repos), app=app)
+
+
+def workspace_target(desired: DesiredState, root: Path,
+                     default_user: str | None) -> WorkspaceTarget:
+    """`ros:` with its defaults: the libpanda user (else lpam's own) and their ~/catkin_ws,
+    where the field's scripts look."""
+    user = desired.ros.user or default_user or getpass.getuser()
+    if desired.ros.workspace is not None:
+        path = root / desired.ros.workspace.lstrip("/")
+    else:
+        path = Layout(root).home(user) / "catkin_ws"
+    return WorkspaceTarget(path=str(path), user=user)
+
+
+def _parallel(work: Callable[[_In], _Out], items: Sequence[_In], fetch: Fetch) -> list[_Out]:
+    """`work` on each item, several at once when each may wait on the network."""
+    if len(items) > 1 and fetch is not Fetch.OFFLINE:
+        with ThreadPoolExecutor(max_workers=min(FETCH_WORKERS, len(items))) as pool:
+            return list(pool.map(work, items))
+    return [work(item) for item in items]
 
 
 def _bring(store: GitStore, key: str, url: str, fetch: Fetch) -> None:
@@ -76,9 +105,16 @@ def _bring(store: GitStore, key: str, url: str, fetch: Fetch) -> None:
 
 
 def _resolve_repo(
-    spec: RepositorySpec, base_dir: Path, store: GitStore, fetch: Fetch
+    spec: RepositorySpec, base_dir: Path, store: GitStore, fetch: Fetch, desired: DesiredState,
 ) -> RepoTarget:
-    url, key, ref = spec.source(base_dir), spec.key, spec.ref
+    return _resolve_ref(spec.key, desired.mirrored(spec.source(base_dir)), spec.ref, store,
+                        fetch)
+
+
+def _resolve_ref(key: str, url: str, ref: str | None, store: GitStore,
+                 fetch: Fetch) -> RepoTarget:
+    """The commit `ref` names in the repository at `url` (stored as `key`): a hash stays,
+    a branch or tag follows its tip, none follows the default branch."""
     same_origin = store.origin_url(key) == url
     commit: str | None = None
     if ref is not None and is_hex_commit(ref):
@@ -133,7 +169,8 @@ def _catalog(store: GitStore, repo: RepoTarget) -> Catalog | None:
 
 
 def _resolve_app(
-    desired: DesiredState, repos: list[RepoTarget], store: GitStore, default_user: str | None
+    desired: DesiredState, repos: list[RepoTarget], store: GitStore, default_user: str | None,
+    fetch: Fetch, workspace: WorkspaceTarget,
 ) -> AppTarget:
     spec = desired.app
     assert spec is not None
@@ -175,7 +212,8 @@ def _resolve_app(
                 f"{path!r}, but that folder does not exist",
                 hint="fix the repository's libpanda-apps.yaml or pin another commit",
             )
-        return _app_target(spec, repo, entry, tree, store, default_user)
+        target = _app_target(spec, repo, entry, tree, store, default_user)
+        return replace(target, deps=_deps(desired, entry, store, fetch, workspace))
     if unknown:
         repo = unknown[0] if len(unknown) == 1 else RepoTarget(UNKNOWN, "", None, None)
         return AppTarget(name=spec.name, repository=repo.key, commit=repo.commit, path=None,
@@ -224,6 +262,25 @@ def _app_target(
             else health.timeout_seconds,
         ),
     )
+
+
+def _deps(desired: DesiredState, entry: CatalogApp, store: GitStore, fetch: Fetch,
+          workspace: WorkspaceTarget) -> Deps:
+    """The app's apt packages, pip requirements and ROS repositories, the latter resolved
+    to commits by the same rules as app repositories (through the desired mirrors)."""
+
+    def ros(source: RosRepository) -> RosSource:
+        key = f"{ROS_KEY_PREFIX}{source.owner}/{source.repo}"
+        try:
+            found = _resolve_ref(key, desired.mirrored(source.source), source.ref, store, fetch)
+        except GitError as exc:
+            raise type(exc)(f"app {entry.name}: ROS repository {source.owner}/{source.repo}: "
+                            f"{exc.message}", hint=exc.hint) from None
+        return RosSource(name=source.repo, repo=found)
+
+    return Deps(apt=tuple(entry.apt), pip=tuple(entry.pip3),
+                ros=tuple(_parallel(ros, entry.ros_repositories, fetch)),
+                workspace=workspace if entry.ros_repositories else None)
 
 
 def _check_user(app: str, user: str) -> None:

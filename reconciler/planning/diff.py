@@ -6,6 +6,7 @@ every no-op says why nothing needs doing, so a user reading the plan can trust i
 
 from __future__ import annotations
 
+from reconciler.planning import dependencies
 from reconciler.planning.lifecycle import same_generation, strays_refreshed
 from reconciler.planning.model import (
     UNKNOWN,
@@ -37,6 +38,7 @@ def diff(targets: Targets, observed: Observed) -> list[Change]:
         for rec in sorted(observed.record.repositories, key=lambda r: r.key)
         if rec.key not in wanted
     ]
+    changes += dependencies.changes(targets.app, observed.deps)
     changes += _strays(strays_refreshed(observed.record, observed.stray_live))
     changes.append(_app(targets.app, observed.record.app, observed.generations, observed.live))
     return changes

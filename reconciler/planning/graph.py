@@ -15,6 +15,7 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from reconciler.errors import PlanError
+from reconciler.planning import dependencies
 from reconciler.planning.lifecycle import app_steps, refreshed, step
 from reconciler.planning.model import Observed, Targets
 from schemas.plan import Action, Change, Phase, Step, StepKind
@@ -40,6 +41,7 @@ def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> li
         if change.action is Action.DELETE and change.address.startswith("repository."):
             key = change.address.removeprefix("repository.")
             steps.append(step(StepKind.REMOVE, Phase.CLEANUP, key, key=key))
+    steps += dependencies.steps(targets.app, observed.deps)
     steps += app_steps(refreshed(observed.record, observed.live, observed.stray_live),
                        targets.app,
                        observed.generations)

@@ -164,6 +164,14 @@ def _wanted(new: AppTarget, gen: str) -> dict[str, ArgValue]:
                       "timeout_seconds": f"{health.timeout_seconds:g}"}
     if health.command is not None:
         args["health_command"] = list(health.command)
+    deps = new.deps
+    if deps.pip:
+        args["pip"] = list(deps.pip)
+    if deps.ros and deps.workspace is not None:
+        args["ros"] = {r.name: r.commit or UNKNOWN for r in deps.ros}
+        args["build"] = deps.ros_build or UNKNOWN
+        args["ros_workspace"] = deps.workspace.path
+        args["ros_user"] = deps.workspace.user
     return args
 
 

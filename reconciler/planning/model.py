@@ -57,6 +57,73 @@ class HealthTarget:
 
 
 @dataclass(frozen=True)
+class RosSource:
+    """One of the app's ROS repositories, resolved like an app repository (`repo`, whose
+    key names it in the store) and checked out as `src/<name>` of its build."""
+
+    name: str
+    repo: RepoTarget
+
+    @property
+    def key(self) -> str:
+        return self.repo.key
+
+    @property
+    def url(self) -> str:
+        return self.repo.url
+
+    @property
+    def commit(self) -> str | None:
+        return self.repo.commit
+
+
+@dataclass(frozen=True)
+class WorkspaceTarget:
+    """The catkin workspace (`ros:` of the desired state, defaults applied) and the user
+    its builds run as; `path` is absolute on this machine (under --root)."""
+
+    path: str
+    user: str
+
+
+@dataclass(frozen=True)
+class Deps:
+    """What the app needs besides its folder, from its catalog entry: apt packages, pip
+    requirements (its virtual environment) and ROS repositories (its catkin build)."""
+
+    apt: tuple[str, ...] = ()
+    pip: tuple[str, ...] = ()
+    ros: tuple[RosSource, ...] = ()
+    workspace: WorkspaceTarget | None = None  # where `ros` is built; not part of the id
+
+    @property
+    def ros_build(self) -> str | None:
+        """The build of the workspace these sources make: one per set of commits, shared by
+        every generation that needs the same; None without ROS repositories or while a
+        commit is unknown."""
+        if not self.ros or any(r.commit is None for r in self.ros):
+            return None
+        return build_key({r.name: r.commit or "" for r in self.ros})
+
+    @property
+    def known(self) -> bool:
+        return all(r.commit is not None for r in self.ros)
+
+    @property
+    def how(self) -> dict[str, str]:
+        """Their part of the generation id: empty for an app without dependencies, so
+        generation ids from before dependencies were known do not change."""
+        how = {}
+        if self.apt:
+            how["apt"] = json.dumps(sorted(self.apt))
+        if self.pip:
+            how["pip"] = json.dumps(sorted(self.pip))
+        if self.ros:
+            how["ros"] = json.dumps({r.name: r.commit for r in self.ros}, sort_keys=True)
+        return how
+
+
+@dataclass(frozen=True)
 class AppTarget:
     """The desired app. `tree`/`path` are None when its commit is not fetched yet.
 
@@ -75,20 +142,23 @@ class AppTarget:
     launch: str | None = None
     user: str | None = None
     health: HealthTarget = field(default_factory=HealthTarget)
+    deps: Deps = field(default_factory=Deps)
 
     @property
     def generation(self) -> str | None:
-        """Generation id: the app folder's content and how it runs, nothing else.
+        """Generation id: the app folder's content, how it runs and what it depends on
+        (a new ROS commit is a new build, so a new generation that a rollback can leave).
         Parameters are not part of it: a change of parameters alone restarts the app
         with the new values, without a new generation or its install scripts."""
-        if self.tree is None:
+        if self.tree is None or not self.deps.known:
             return None
         return generation_id(self.tree, self.how)
 
     @property
     def how(self) -> dict[str, str]:
-        """How the app runs, as far as it shapes the generation (empty for a script app)."""
-        how = {}
+        """How the app runs and what it needs, as far as it shapes the generation (empty for
+        a script app without dependencies)."""
+        how = dict(self.deps.how)
         if self.command is not None:
             how["command"] = json.dumps(list(self.command))
         if self.launch is not None:
@@ -126,6 +196,27 @@ class Observed:
     interrupted: tuple[str, ...] = ()
     live: UnitState | None = None  # the installed app's unit, as its service manager says
     stray_live: dict[str, UnitState] = field(default_factory=dict)  # LPAM's app's unit
+    deps: DepsObserved | None = None  # the desired app's dependencies on this machine
+
+
+@dataclass(frozen=True)
+class DepsObserved:
+    """What the desired app's dependencies look like on the machine now: apt packages
+    dpkg lacks, requirements its environment would lack (and whether that environment
+    exists), whether its ROS build exists, and the ROS commits of the installed app's
+    build (to say `17dd12e9 → d7134708`)."""
+
+    apt_missing: tuple[str, ...] = ()
+    pip_unsatisfied: tuple[str, ...] = ()
+    venv_ready: bool = True
+    ros_built: bool = True
+    ros_installed: dict[str, str] = field(default_factory=dict)
+
+
+def build_key(commits: dict[str, str]) -> str:
+    """The key of a ROS build: its sources' names and commits."""
+    body = json.dumps(commits, sort_keys=True).encode()
+    return hashlib.sha256(body).hexdigest()[:16]
 
 
 def generation_id(tree: str, how: dict[str, str]) -> str:

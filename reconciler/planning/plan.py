@@ -60,7 +60,7 @@ def fingerprint(plan: Plan) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
 
 
-_REQUIRED_ARGS = ("commit", "generation", "tree", "path", "repository")
+_REQUIRED_ARGS = ("commit", "generation", "tree", "path", "repository", "build", "ros")
 
 
 def _unknown_values(plan: Plan) -> list[str]:

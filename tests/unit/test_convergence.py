@@ -25,7 +25,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from reconciler import generations
@@ -229,8 +229,16 @@ def test_any_machine_converges_and_the_bus_is_never_shared(
         converge(world, wish)
 
 
+# Found by hypothesis: a stray whose generation is the wished one (same folder, other
+# parameters) must be installed with the wished parameters, not the stray's own.
+_STRAY_SAME_GENERATION = (
+    StateRecord(strays=[Stray(name="x", generation="111111111111-44136fa3", params={})]),
+    [("x", "a" * 40, {})])
+
+
 @settings(max_examples=EXAMPLES, deadline=None)
 @given(machines(), wishes, crashes)
+@example(_STRAY_SAME_GENERATION, ("x", "a" * 40, {"K": "1"}), (3, "before"))
 def test_a_crash_anywhere_resumes_without_running_a_finished_script_again(
     machine: tuple[StateRecord, list[tuple[str, str, dict[str, str]]]],
     wish: tuple[str, str, dict[str, str]] | None, crash: tuple[int, str] | None,

@@ -324,3 +324,16 @@ def test_any_printable_text_round_trips(args: list[str], env: dict[str, str]) ->
     assert read_exec(exec_line([PROGRAM, *args])) == [PROGRAM, *args]
     for key, value in env.items():
         assert read_environment(environment_assignment(key, value)) == {key: value}
+
+
+def test_a_launch_app_inside_its_ros_build_reads_back_and_verifies(tmp_path: Path) -> None:
+    """The unit of a `launch:` app runs roslaunch through a shell that sources its build's
+    setup first: the shell's `$1` and `"$@"` must reach bash, not systemd's expansion."""
+    from reconciler.execution.supervision import ROS_WRAPPER
+
+    setup = tmp_path / "ws" / ".lpam" / "builds" / "0123456789abcdef" / "devel" / "setup.bash"
+    argv = ("/bin/bash", "-c", ROS_WRAPPER, "lpam-ros", str(setup), "roslaunch",
+            "can_to_ros", "vsl.launch")
+    text = render_unit(unit(tmp_path, argv=argv, environment={"ROS_HOME": str(tmp_path)}))
+    assert read_exec(values(text, "Service", "ExecStart")[0]) == list(argv)
+    assert verify(tmp_path, text) == ""
