@@ -19,10 +19,14 @@ from ruamel.yaml import YAML
 
 HERE = Path(__file__).resolve().parent
 TOP = HERE.parent
+sys.path.insert(0, str(TOP))
+from tests.wheels import write_wheel  # noqa: E402 - after the checkout is on sys.path
+
 DEMO = TOP / ".demo"
 ROOT = DEMO / "root"
 REPO = DEMO / "example-apps.git"
 EXAMPLE = TOP / "desired-state.example.yaml"
+WHEELS = DEMO / "wheels"
 LPAM = [sys.executable, "-m", "reconciler"]
 IDENTITY = b"lpam demo <demo@example.org>"
 
@@ -53,12 +57,24 @@ def build_repository() -> str:
     return head.decode()
 
 
+def build_wheels() -> str:
+    """The wheel folder the apps' pip dependency comes from (no index, no network): the
+    module examples/speedunits.py as the distribution lpam-demo-speedunits."""
+    shutil.rmtree(WHEELS, ignore_errors=True)
+    WHEELS.mkdir(parents=True)
+    wheel = write_wheel(WHEELS, "lpam-demo-speedunits", "1.0", module="speedunits",
+                        source=(HERE / "speedunits.py").read_text())
+    return wheel.name
+
+
 def lpam(*args: str, check: bool = True) -> int:
     shown = " ".join(["lpam", *args]).replace(str(TOP) + "/", "")
     print(f"\n$ {shown}", flush=True)
     # supervisord under the sandbox root runs the apps, even on a machine where systemd
     # runs: the demo must never touch this machine's own services.
-    env = dict(os.environ, LPAM_ROOT=str(ROOT), LPAM_SERVICES="supervisor")
+    # pip installs the apps' dependencies from the demo's wheel folder only.
+    env = dict(os.environ, LPAM_ROOT=str(ROOT), LPAM_SERVICES="supervisor", PIP_NO_INDEX="1",
+               PIP_FIND_LINKS=str(WHEELS), PIP_DISABLE_PIP_VERSION_CHECK="1")
     code = subprocess.call([*LPAM, *args], cwd=TOP, env=env)
     if check and code not in (0, 2):
         raise SystemExit(f"demo failed: `{shown}` exited {code}")
@@ -86,10 +102,12 @@ def main() -> int:
     DEMO.mkdir(exist_ok=True)
     print("== 1. Build the example app repository (.demo/example-apps.git)")
     print(f"   main is at {build_repository()[:12]}; tag v1.0 on the commit before")
+    print(f"   the apps' pip dependency: .demo/wheels/{build_wheels()} (no index, no network)")
     print("\n== 2. Validate and preview the example desired state")
     lpam("validate", str(EXAMPLE))
     lpam("plan", "-f", str(EXAMPLE))
-    print("\n== 3. Apply it: clone, stage can-logger, install and start it")
+    print("\n== 3. Apply it: clone, prepare can-logger's Python environment from the wheel")
+    print("   folder (before the cutover), stage, install and start it")
     lpam("apply", "-f", str(EXAMPLE), "--yes")
     lpam("status")
     print("\n== 4. Plan again: nothing to do (exit code 0 with --detailed-exitcode)")
@@ -110,7 +128,8 @@ def main() -> int:
     bad = DEMO / "bad.yaml"
     bad.write_text("version: 1\nrepositories:\n  - url: x\n    reff: main\napp: null\n")
     lpam("plan", "-f", str(bad), check=False)
-    print("\n== 7. A scriptless app: lpam writes its unit and supervisord runs it")
+    print("\n== 7. A scriptless app: lpam writes its unit and supervisord runs it, inside")
+    print("   its Python environment (shared with can-logger: same requirements, no pip run)")
     logger = switched_desired_state("speed-logger", {"RATE_HZ": "4"}, "logger")
     lpam("apply", "-f", str(logger), "--yes")
     lpam("status")

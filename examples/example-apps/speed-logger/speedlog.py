@@ -10,6 +10,8 @@ import os
 import sys
 import time
 
+from speedunits import to_unit  # a pip dependency: lpam-demo-speedunits
+
 rate = float(os.environ.get("RATE_HZ", "2"))
 crash_after = os.environ.get("CRASH_AFTER")
 started = time.monotonic()
@@ -19,5 +21,6 @@ while True:
     if crash_after is not None and elapsed >= float(crash_after):
         print("speed-logger: lost the CAN bus, giving up", flush=True)
         sys.exit(1)
-    print(f"speed {50 + 20 * math.sin(elapsed / 5):.1f} km/h", flush=True)
+    unit = os.environ.get("SPEED_UNIT", "km/h")
+    print(f"speed {to_unit(50 + 20 * math.sin(elapsed / 5), unit):.1f} {unit}", flush=True)
     time.sleep(1 / rate)
