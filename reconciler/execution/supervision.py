@@ -13,6 +13,7 @@ import getpass
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from reconciler.adapters.catkin import find_underlay
 from reconciler.adapters.scripts import DEFAULT_PATH
 from reconciler.errors import HealthError, StepError
 from reconciler.execution.context import Context
@@ -48,6 +49,10 @@ def runtime(ctx: Context, gen: Generation) -> Runtime:
         env["LPAM_ROS_SETUP"] = str(setup)
         # roslaunch keeps its logs in $ROS_HOME: the ROS user's ~/.ros, beside the workspace
         env["ROS_HOME"] = str(Path(gen.ros_workspace).parent / ".ros")
+    elif gen.launch is not None:
+        # no build of its own: roslaunch comes from the ROS distribution, whose setup puts
+        # it on PATH (/opt/ros/noetic/bin on the Pi; Debian's own is in /usr/bin already)
+        setup = find_underlay()
     return Runtime(env, setup)
 
 

@@ -245,3 +245,26 @@ def test_a_unit_that_cannot_be_written_is_refused_while_preparing(tmp_path: Path
     with pytest.raises(StepError, match="x: unit lpam-app-x: the value of NOTE holds a line"):
         run(StepKind.STAGE, ctx, values)
     assert services.units == {} and services.calls == [("check", "lpam-app-x")]
+
+
+@pytest.mark.parametrize("underlay", [None, "/opt/ros/noetic/setup.bash"])
+def test_a_launch_app_without_a_build_of_its_own_runs_in_the_ros_distribution(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, underlay: str | None
+) -> None:
+    """On the Pi roslaunch is on PATH only once /opt/ros/noetic/setup.bash is sourced;
+    Debian's own roslaunch (this machine's) needs nothing."""
+    from reconciler.execution import supervision
+
+    monkeypatch.setattr(supervision, "find_underlay",
+                        lambda: None if underlay is None else Path(underlay))
+    services = MemoryServices()
+    ctx, _ = machine(tmp_path, services, {"description.txt": "vsl\n"})
+    values = {**args(), "launch": "can_to_ros/vsl.launch",
+              "generation": generation_id(TREE, {"launch": "can_to_ros/vsl.launch"})}
+    install(ctx, values)
+    argv = services.units["lpam-app-x"].argv
+    if underlay is None:
+        assert argv == ("roslaunch", "can_to_ros", "vsl.launch")
+    else:
+        assert argv == ("bash", "-c", supervision.ROS_WRAPPER, "lpam-ros", underlay,
+                        "roslaunch", "can_to_ros", "vsl.launch")
