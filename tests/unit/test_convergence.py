@@ -231,7 +231,7 @@ def test_any_machine_converges_and_the_bus_is_never_shared(
 
 # Found by hypothesis: a stray whose generation is the wished one (same folder, other
 # parameters) must be installed with the wished parameters, not the stray's own.
-_STRAY_SAME_GENERATION = (
+_STRAY_SAME_GENERATION: tuple[StateRecord, list[tuple[str, str, dict[str, str]]]] = (
     StateRecord(strays=[Stray(name="x", generation="111111111111-44136fa3", params={})]),
     [("x", "a" * 40, {})])
 
