@@ -3,9 +3,9 @@
     .venv/bin/python -m bench.phases DESIRED.yaml ROOT     # prints one JSON object
 
 Why not cProfile: `resolve` works in a thread pool, which cProfile does not see, and a
-profiler's overhead falls unevenly on import-heavy and call-heavy code. This mirrors
-`reconciler.cli.cmd_plan` / `_prepare` step by step (keep it in step with them) and times
-each step with a plain clock. Imports are timed in the order the CLI meets them, so each
+profiler's overhead falls unevenly on import-heavy and call-heavy code. It runs the plan use
+case itself (reconciler.workflow.planning.prepare, what `lpam plan` runs) and times the
+phases it reports, with a plain clock. Imports are timed in the order the CLI meets them, so each
 line is what that import adds on top of the ones before it.
 """
 
@@ -25,6 +25,7 @@ IMPORTS = {  # phase name: modules, in the order `lpam plan` first imports them
     "import observe (state record, journal)": ["reconciler.observe.machine",
                                                "reconciler.observe.targets"],
     "import planning.plan (networkx)": ["reconciler.planning.plan"],
+    "import workflow (the use cases)": ["reconciler.workflow.planning"],
 }
 
 
@@ -43,27 +44,26 @@ def phases(desired_path: Path, root: Path) -> dict[str, float]:
             importlib.import_module(module)
         lap(name)
 
-    from reconciler import __version__
-    from reconciler.adapters.git import GitStore
-    from reconciler.cli import now
     from reconciler.documents import load_desired
     from reconciler.layout import Layout
-    from reconciler.observe.machine import observe
-    from reconciler.observe.targets import Fetch, resolve
-    from reconciler.planning.plan import make_plan
+    from reconciler.observe.targets import Fetch
     from reconciler.planning.render import render
+    from reconciler.workflow.events import Event, Phase
+    from reconciler.workflow.machine import Machine
+    from reconciler.workflow.planning import prepare
 
-    layout = Layout(root.resolve())
+    names = {"resolve": "resolve (refs -> commits, thread pool)",
+             "observe": "observe (record, checkouts, journal)",
+             "plan": "make_plan (diff + graph)"}
+
+    def report(event: Event) -> None:
+        if isinstance(event, Phase):
+            lap(names[event.name])
+
+    machine = Machine.at(Layout(root.resolve()))
     desired = load_desired(desired_path)
     lap("load_desired (parse + validate YAML)")
-    store = GitStore(layout, timeout=60.0)
-    targets = resolve(desired, base_dir=desired_path.resolve().parent, store=store,
-                      fetch=Fetch.OBJECTS)
-    lap("resolve (refs -> commits, thread pool)")
-    observed = observe(layout, store, targets)
-    lap("observe (record, checkouts, journal)")
-    plan = make_plan(targets, observed, now=now(), lpam_version=__version__)
-    lap("make_plan (diff + graph)")
+    _, plan = prepare(machine, desired_path, desired, fetch=Fetch.OBJECTS, report=report)
     render(plan)
     lap("render")
     return times

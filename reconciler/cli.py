@@ -26,14 +26,10 @@ from reconciler.errors import ConfigError, LpamError
 from reconciler.layout import Layout
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
-    from reconciler.adapters.git import GitStore
-    from reconciler.execution.context import Context
-    from reconciler.execution.lock import Lock
-    from reconciler.execution.ports import DependencyPorts, Services
-    from reconciler.observe.targets import Fetch
-    from schemas.desired import DesiredState
+    from reconciler.execution.ports import Services
+    from reconciler.workflow.events import Event
+    from reconciler.workflow.machine import Machine
     from schemas.plan import Plan
-    from schemas.record import StateRecord
 
 EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
 NETWORK_TIMEOUT = ("--network-timeout",)
@@ -56,6 +52,12 @@ LOCK_TIMEOUT_OPTIONS: dict[str, Any] = {
 
 def now() -> datetime:
     return datetime.now(UTC)
+
+
+def services_for(layout: Layout, override: str | None) -> Services:
+    from reconciler.workflow.machine import services_for as choose
+
+    return choose(layout, override)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -226,124 +228,59 @@ def _desired_path(args: argparse.Namespace, layout: Layout) -> Path:
     return Path(args.file) if args.file else layout.desired_state
 
 
-def _services(args: argparse.Namespace, layout: Layout) -> Services:
-    """The service manager: --services, else $LPAM_SERVICES, else systemd where it runs."""
-    from reconciler.adapters.services.choice import choose
+def _machine(args: argparse.Namespace, layout: Layout) -> Machine:
+    from reconciler.workflow.machine import Machine
 
-    kind = choose(override=getattr(args, "services", None), env=os.environ)
-    if kind == "systemd":
-        from reconciler.adapters.services.systemd import SystemdServices
-
-        return SystemdServices(layout)
-    from reconciler.adapters.services.supervisor import SupervisorServices
-
-    return SupervisorServices(layout)
+    return Machine.at(layout, services=getattr(args, "services", None),
+                      network_timeout=getattr(args, "network_timeout", 60.0))
 
 
-def _prepare(
-    layout: Layout, path: Path, desired: DesiredState, *, fetch: Fetch, timeout: float,
-    services: Services, busy: str | None = None,
-) -> tuple[GitStore, Plan]:
-    """Resolve the desired state, observe the machine and plan; `path` anchors relative URLs.
-    `busy` is what holds the lock when the caller planned beside a running apply."""
-    from reconciler.adapters.git import GitStore
-    from reconciler.legacy.appdir import libpanda_user
-    from reconciler.observe.machine import observe
-    from reconciler.observe.targets import Fetch, resolve
-    from reconciler.planning.plan import make_plan
-    from reconciler.state import read_record
+class Terminal:
+    """Where the use cases' events go in a terminal: notes to stderr, progress to stdout,
+    and of a long command's output (a build, an install) its command line, then at most
+    every few seconds how long it has run and its latest line."""
 
-    store = GitStore(layout, timeout=timeout)
-    record = read_record(layout)
-    hold = _hold(record, desired)
-    if hold is not None:  # a rollback holds: nothing to resolve, no network needed
-        return store, _held_plan(layout, store, services, record, hold)
-    targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
-                      default_user=libpanda_user(layout), root=layout.root)
-    observed = observe(layout, store, targets, services, _dependency_ports(layout))
-    if busy is not None:
-        print(f"note: an apply is in progress ({busy}); this plan shows the machine as it "
-              "stands now, part-way through it", file=sys.stderr)
-    plan = make_plan(targets, observed, now=now(), lpam_version=__version__,
-                     offline=fetch is Fetch.OFFLINE, hold=hold)
-    if busy is None and observed.interrupted:
-        cut = ", ".join(observed.interrupted)
-        # The step's script may have finished after lpam died (its guard wrote the exit
-        # code): then the record is settled and nothing is left to run again.
-        rest = ("the steps below finish it" if plan.steps
-                else "its script finished since, so nothing is left to redo")
-        print(f"note: the last apply was interrupted during {cut}; {rest}", file=sys.stderr)
-    return store, plan
+    EVERY = 5.0
 
+    def __init__(self) -> None:
+        import time
 
-def _held_plan(layout: Layout, store: GitStore, services: Services, record: StateRecord,
-               hold: str) -> Plan:
-    """While a rollback holds: the steps that finish it if it was cut off, else nothing."""
-    from reconciler.observe.machine import observe
-    from reconciler.planning.lifecycle import target_of
-    from reconciler.planning.model import Observed, RepoTarget, Targets
-    from reconciler.planning.plan import make_plan
+        self._clock = time.monotonic
+        self._started = self._shown = self._clock()
 
-    target = record.hold.target if record.hold is not None else None
-    if target is not None:
-        repos = tuple(RepoTarget(r.key, r.url, r.ref, r.commit) for r in record.repositories)
-        targets = Targets(repos, target_of(target.installed()))
-        plan = make_plan(targets, observe(layout, store, targets, services,
-                                          _dependency_ports(layout)), now=now(),
-                         lpam_version=__version__)
-        if plan.steps:
-            print(f"note: the rollback to {target.app} ({target.generation}) was cut off; "
-                  "the steps below finish it", file=sys.stderr)
-            return plan
-    return make_plan(Targets((), None), Observed(record=record, repositories={}),
-                     now=now(), lpam_version=__version__, hold=hold)
+    def __call__(self, event: Event) -> None:
+        from reconciler.planning.render import render
+        from reconciler.workflow.events import Note, Output, Planned, Progress
 
+        if isinstance(event, Note):
+            print(f"note: {event.text}", file=sys.stderr)
+        elif isinstance(event, Progress):
+            print(event.text, flush=True)
+        elif isinstance(event, Planned):
+            print(render(event.plan))
+        elif isinstance(event, Output):
+            self._output(event.line)
 
-def _hold(record: StateRecord, desired: DesiredState) -> str | None:
-    """The reason the machine is held by a rollback, while the desired state is unchanged."""
-    from reconciler.workflow.operate import desired_fingerprint
-
-    hold = record.hold
-    if hold is None or hold.desired != desired_fingerprint(desired):
-        return None
-    return (f"held by `lpam rollback` at generation {hold.generation}: nothing is proposed "
-            "until the desired state changes (`lpam apply --release` ends the hold)")
+    def _output(self, line: str) -> None:
+        now_ = self._clock()
+        if line.startswith("$ "):  # a new command: its clock starts
+            self._started = self._shown = now_
+            print(f"      {line[:100]}", flush=True)
+        elif now_ - self._shown >= self.EVERY:
+            self._shown = now_
+            shown = "".join(c if c.isprintable() else "?" for c in line)[:80]
+            print(f"      … {now_ - self._started:.0f} s: {shown}", flush=True)
 
 
 def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
-    """A plan is exact: it fetches the commits it needs into the store's object database
-    (under the lock, never moving a checkout). Beside a running apply, or with
-    --offline, it plans from what is local and says so; such a plan cannot be saved."""
     from reconciler.documents import load_desired
-    from reconciler.errors import LockError
-    from reconciler.execution.lock import apply_lock, holder
-    from reconciler.observe.targets import Fetch
+    from reconciler.workflow.planning import plan
 
     path = _desired_path(args, layout)
     desired = load_desired(path)
-    if args.offline and args.out is not None:
-        raise LpamError("an --offline plan cannot be saved: it may hold values known only "
-                        "after a fetch", hint="drop --offline to save an exact plan")
-    services = _services(args, layout)
-    if args.offline:
-        _, plan = _prepare(layout, path, desired, fetch=Fetch.OFFLINE, services=services,
-                           timeout=args.network_timeout, busy=holder(layout))
-        return _show_plan(args, plan)
-    try:
-        with apply_lock(layout, timeout=args.lock_timeout):
-            _, plan = _prepare(layout, path, desired, fetch=Fetch.OBJECTS, services=services,
-                               timeout=args.network_timeout)
-            if args.out is not None:
-                from reconciler.atomic import write_atomic
-
-                write_atomic(args.out, plan.model_dump_json(indent=2) + "\n")
-    except LockError:
-        busy = holder(layout)
-        if args.out is not None or busy is None:
-            raise
-        _, plan = _prepare(layout, path, desired, fetch=Fetch.OFFLINE, services=services,
-                           timeout=args.network_timeout, busy=busy)
-    return _show_plan(args, plan)
+    made = plan(_machine(args, layout), path, desired, report=Terminal(),
+                offline=args.offline, out=args.out, lock_timeout=args.lock_timeout)
+    return _show_plan(args, made)
 
 
 def _show_plan(args: argparse.Namespace, plan: Plan) -> int:
@@ -362,147 +299,50 @@ def _show_plan(args: argparse.Namespace, plan: Plan) -> int:
 
 def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.documents import load_desired, load_plan
-    from reconciler.execution.lock import apply_lock
+    from reconciler.workflow.applying import ApplyOptions, apply, apply_saved
 
     if args.planfile is not None and args.file is not None:
         raise LpamError("give either a plan file or -f FILE, not both")
+    options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
+                           keep_generations=args.keep_generations, release=args.release)
     # Bad input is rejected before the lock is taken, so it never waits on another apply.
     if args.planfile is not None:
-        plan = load_plan(args.planfile)
-        with apply_lock(layout, timeout=args.lock_timeout) as lock:
-            return _apply_saved(args, layout, plan, lock)
-    path = _desired_path(args, layout)
-    desired = load_desired(path)
-    with apply_lock(layout, timeout=args.lock_timeout) as lock:
-        if args.release:
-            from reconciler.state import read_record, write_record
-
-            record = read_record(layout)
-            if record.hold is not None:
-                write_record(layout, record.model_copy(update={"hold": None}))
-                print(f"Released the hold on generation {record.hold.generation}.")
-        return _apply_desired(args, layout, path, desired, lock)
-
-
-def _apply_saved(args: argparse.Namespace, layout: Layout, plan: Plan, lock: Lock) -> int:
-    from reconciler.adapters.git import GitStore
-    from reconciler.planning.plan import check_plan
-    from reconciler.state import read_record
-
-    record = read_record(layout)
-    check_plan(plan, lineage=record.lineage, serial=record.serial, source=str(args.planfile))
-    return _execute(args, layout, GitStore(layout, timeout=args.network_timeout), plan, lock)
+        saved = load_plan(args.planfile)
+        print()
+        done = apply_saved(_machine(args, layout), saved, str(args.planfile),
+                           options=options, report=Terminal())
+    else:
+        path = _desired_path(args, layout)
+        desired = load_desired(path)
+        done = apply(_machine(args, layout), path, desired, options=options,
+                     confirm=lambda plan: _confirm(args), report=Terminal())
+    if done.cancelled:
+        print("Apply cancelled; nothing was changed.")
+        return EXIT_ERROR
+    if done.steps:
+        print(f"\nApply complete: {done.steps} steps; {done.app}. Script output: {done.log}")
+    return EXIT_OK
 
 
-def _apply_desired(
-    args: argparse.Namespace, layout: Layout, path: Path, desired: DesiredState, lock: Lock
-) -> int:
-    from reconciler.observe.targets import Fetch
-    from reconciler.planning.render import render
-
-    store, plan = _prepare(layout, path, desired, fetch=Fetch.CHECKOUT,
-                           services=_services(args, layout), timeout=args.network_timeout)
-    print(render(plan))
-    if not plan.steps:
-        return EXIT_OK
+def _confirm(args: argparse.Namespace) -> bool:
     if not args.yes:
         if not sys.stdin.isatty():
             raise LpamError("apply needs confirmation", hint="pass --yes to apply without asking")
         if input("\nApply these changes? Only 'yes' is accepted: ").strip() != "yes":
-            print("Apply cancelled; nothing was changed.")
-            return EXIT_ERROR
-    return _execute(args, layout, store, plan, lock)
-
-
-def _execute(
-    args: argparse.Namespace, layout: Layout, store: GitStore, plan: Plan, lock: Lock
-) -> int:
-    from reconciler.execution.executor import execute
-
-    ctx, log = _context(args, layout, store, lock)
+            return False
     print()
-    execute(plan, ctx, progress=print, keep=args.keep_generations)
-    app = ctx.record.app
-    where = f"{app.name} {app.status}" if app else "no app"
-    if app is not None and app.service is not None and app.status == "running":
-        state = ctx.services.state(app.service)
-        where += f" ({state.describe()})" if state.known else \
-            f" (unverified: {state.describe()}; the scripts reported success)"
-    print(f"\nApply complete: {len(plan.steps)} steps; {where}. Script output: {log}")
-    return EXIT_OK
-
-
-def _context(args: argparse.Namespace, layout: Layout, store: GitStore,
-             lock: Lock) -> tuple[Context, Path]:
-    from reconciler.adapters.scripts import ScriptRunner
-    from reconciler.execution.context import Context
-    from reconciler.state import read_record
-
-    started = now()
-    log = layout.logs / f"{args.command}-{started.strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
-    ctx = Context(
-        layout=layout, store=store, clock=now, record=read_record(layout),
-        services=_services(args, layout),
-        scripts=ScriptRunner(root=layout.root, log=log, runs=layout.runs,
-                             timeout=args.script_timeout, lock_fd=lock.fd, note=lock.note),
-        deps=_dependency_ports(layout), log=ProgressLog(log),
-    )
-    return ctx, log
-
-
-def _dependency_ports(layout: Layout) -> DependencyPorts:
-    """apt, pip (environments made from $LPAM_PYTHON, default the system's python3) and
-    catkin: the ports an app's dependencies are prepared through."""
-    from reconciler.adapters.apt import AptPackages
-    from reconciler.adapters.catkin import CatkinWorkspace
-    from reconciler.adapters.pythonenv import VenvPythonEnvs
-    from reconciler.execution.ports import DependencyPorts
-
-    return DependencyPorts(
-        packages=AptPackages(), envs=VenvPythonEnvs(layout.venvs,
-                                                    python=os.environ.get("LPAM_PYTHON")),
-        workspace=CatkinWorkspace)
-
-
-class ProgressLog:
-    """The output of a long step (apt, pip, catkin_make): every line to the apply log, and
-    on the terminal, at most every few seconds, how long it has run and its latest line."""
-
-    EVERY = 5.0
-
-    def __init__(self, path: Path) -> None:
-        import time
-
-        self._path = path
-        self._clock = time.monotonic
-        self._started = self._shown = self._clock()
-
-    def __call__(self, line: str) -> None:
-        from reconciler.reading import open_append
-
-        fd = open_append(self._path)
-        try:
-            os.write(fd, (line + "\n").encode("utf-8", "replace"))
-        finally:
-            os.close(fd)
-        now_ = self._clock()
-        if line.startswith("$ "):  # a new command: its clock starts
-            self._started = self._shown = now_
-            print(f"      {line[:100]}", flush=True)
-        elif now_ - self._shown >= self.EVERY:
-            self._shown = now_
-            shown = "".join(c if c.isprintable() else "?" for c in line)[:80]
-            print(f"      … {now_ - self._started:.0f} s: {shown}", flush=True)
+    return True
 
 
 def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
     """`lpam start|stop|restart`: on the installed app now, journalled like an apply."""
-    from reconciler.adapters.git import GitStore
     from reconciler.execution.lock import apply_lock
     from reconciler.workflow.operate import operate
 
+    machine = _machine(args, layout)
     with apply_lock(layout, timeout=args.lock_timeout) as lock:
-        ctx, _ = _context(args, layout, GitStore(layout), lock)
+        ctx, _ = machine.context(machine.store(), lock, command=args.command,
+                                 script_timeout=args.script_timeout, report=Terminal())
         print(operate(ctx, args.command, progress=print))
     return EXIT_OK
 
@@ -517,7 +357,7 @@ def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
         raise LpamError("no installed app with a unit to show the output of" if app is None
                         else f"{app.name} names no unit (no `service` file)",
                         hint="its scripts' output is in <root>/var/log/lpam/apply-*.log")
-    services = _services(args, layout)
+    services = services_for(layout, args.services)
     shown = services.logs(app.service, max(args.lines, 1))
     for line in shown:
         print(line)
@@ -560,15 +400,16 @@ def cmd_history(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.adapters.git import GitStore
     from reconciler.documents import load_desired
     from reconciler.execution.lock import apply_lock
     from reconciler.workflow.operate import previous_good, rollback
 
     path = _desired_path(args, layout)
     desired = load_desired(path) if path.exists() else None
+    machine = _machine(args, layout)
     with apply_lock(layout, timeout=args.lock_timeout) as lock:
-        ctx, _ = _context(args, layout, GitStore(layout), lock)
+        ctx, _ = machine.context(machine.store(), lock, command=args.command,
+                                 script_timeout=args.script_timeout, report=Terminal())
         entry = previous_good(ctx)
         print(f"Roll back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}, "
               f"applied {entry.time})?")
@@ -596,7 +437,7 @@ def cmd_services(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler import status
 
-    services = _services(args, layout)
+    services = services_for(layout, args.services)
     if args.json:
         print(json.dumps(status.as_json(layout, state=services.state, manager=services.kind),
                          indent=2))

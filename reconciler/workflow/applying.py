@@ -1,0 +1,111 @@
+"""The apply use case: plan under the lock (fetching for real), confirm, execute.
+
+Bad input is refused before the lock is taken, so it never waits on another apply; the
+plan that is shown is the plan that runs, under the same lock. A saved plan runs only if
+it is exact, untampered, and made against the state the machine is still in.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from reconciler.workflow.events import Planned, Progress, Report
+from reconciler.workflow.machine import Machine
+from reconciler.workflow.planning import prepare
+
+if TYPE_CHECKING:
+    from reconciler.adapters.git import GitStore
+    from reconciler.execution.lock import Lock
+    from schemas.desired import DesiredState
+    from schemas.plan import Plan
+
+
+@dataclass(frozen=True)
+class ApplyOptions:
+    lock_timeout: float = 10.0
+    script_timeout: float = 600.0  # an app script running longer is killed
+    keep_generations: int = 3  # good generations kept on disk for `lpam rollback`
+    release: bool = False  # end a rollback's hold first
+
+
+@dataclass(frozen=True)
+class Applied:
+    """How an apply ended: `steps` run (0: nothing to do), the app as it stands now, and
+    the log of its scripts and commands. `cancelled`: the caller declined the plan."""
+
+    steps: int
+    app: str
+    log: Path | None = None
+    cancelled: bool = False
+
+
+def apply(machine: Machine, path: Path, desired: DesiredState, *, options: ApplyOptions,
+          confirm: Callable[[Plan], bool], report: Report) -> Applied:
+    """`lpam apply [-f FILE]`: the plan is reported (`Planned`) and `confirm`ed before it
+    runs; nothing changes when it is declined."""
+    from reconciler.execution.lock import apply_lock
+    from reconciler.observe.targets import Fetch
+
+    with apply_lock(machine.layout, timeout=options.lock_timeout) as lock:
+        if options.release:
+            _release(machine, report)
+        store, made = prepare(machine, path, desired, fetch=Fetch.CHECKOUT, report=report)
+        report(Planned(made))
+        if not made.steps:
+            return Applied(0, _standing(machine))
+        if not confirm(made):
+            return Applied(0, _standing(machine), cancelled=True)
+        return execute_plan(machine, store, made, lock, options=options, report=report)
+
+
+def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOptions,
+                report: Report) -> Applied:
+    """`lpam apply PLANFILE`: refused when it is stale, edited, offline or inexact."""
+    from reconciler.execution.lock import apply_lock
+    from reconciler.planning.plan import check_plan
+    from reconciler.state import read_record
+
+    with apply_lock(machine.layout, timeout=options.lock_timeout) as lock:
+        record = read_record(machine.layout)
+        check_plan(saved, lineage=record.lineage, serial=record.serial, source=source)
+        return execute_plan(machine, machine.store(), saved, lock, options=options,
+                            report=report)
+
+
+def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
+                 options: ApplyOptions, report: Report) -> Applied:
+    from reconciler.execution.executor import execute
+
+    ctx, log = machine.context(store, lock, command="apply",
+                               script_timeout=options.script_timeout, report=report)
+    execute(made, ctx, progress=lambda text: report(Progress(text)),
+            keep=options.keep_generations)
+    return Applied(len(made.steps), _standing(machine, ctx.record.app), log)
+
+
+def _standing(machine: Machine, app: object = None) -> str:
+    """The installed app as it stands, its unit asked of the service manager."""
+    from reconciler.state import read_record
+    from schemas.record import AppRecord
+
+    current = app if isinstance(app, AppRecord) else read_record(machine.layout).app
+    if current is None:
+        return "no app"
+    where = f"{current.name} {current.status}"
+    if current.service is not None and current.status == "running":
+        state = machine.services.state(current.service)
+        where += f" ({state.describe()})" if state.known else \
+            f" (unverified: {state.describe()}; the scripts reported success)"
+    return where
+
+
+def _release(machine: Machine, report: Report) -> None:
+    from reconciler.state import read_record, write_record
+
+    record = read_record(machine.layout)
+    if record.hold is not None:
+        write_record(machine.layout, record.model_copy(update={"hold": None}))
+        report(Progress(f"Released the hold on generation {record.hold.generation}."))

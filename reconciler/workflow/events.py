@@ -1,0 +1,56 @@
+"""What a use case tells its caller while it works, as values: the CLI prints them, the
+agent logs them, a benchmark times them, the Bluetooth service will notify them.
+
+A use case never prints. Each event is small and frozen; `Report` is where they go.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from schemas.plan import Plan
+
+
+@dataclass(frozen=True)
+class Note:
+    """Worth telling beside the result (the CLI writes it to stderr as `note: …`)."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class Progress:
+    """A step starting (`[3/7] build:… …`), a rollback step, a line of the outcome."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class Output:
+    """A line of a long command's output (apt-get, pip, catkin_make), already in the
+    apply log; a terminal shows some of them so a 10-minute build is not silent."""
+
+    line: str
+
+
+@dataclass(frozen=True)
+class Planned:
+    """The plan an apply is about to carry out (before any confirmation)."""
+
+    plan: Plan
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A phase of planning finished (`resolve`, `observe`, `plan`): benchmarks time them."""
+
+    name: str
+
+
+Event = Note | Progress | Output | Planned | Phase
+Report = Callable[[Event], None]
+
+
+def ignore(event: Event) -> None:
+    """A `Report` for callers that want only the result."""

@@ -1,0 +1,115 @@
+"""One lpam installation as every use case sees it: its layout and the ports it acts
+through, made once by the caller (the CLI from its flags, the agent from agent.yaml).
+
+Which service manager runs the apps (systemd where it runs, else supervisord; `--services`
+or `LPAM_SERVICES` overrides), and how dependencies are prepared (apt, pip environments
+made from the system's python3 or `$LPAM_PYTHON`, catkin), are decided here and nowhere
+else, so every caller gets the same machine.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from reconciler.layout import Layout
+from reconciler.reading import open_append
+from reconciler.workflow.events import Output, Report
+
+if TYPE_CHECKING:
+    from reconciler.adapters.git import GitStore
+    from reconciler.execution.context import Context
+    from reconciler.execution.lock import Lock
+    from reconciler.execution.ports import DependencyPorts, Services
+
+
+def now() -> datetime:
+    return datetime.now(UTC)
+
+
+def services_for(layout: Layout, override: str | None,
+                 env: Mapping[str, str] = os.environ) -> Services:
+    """The service manager: `override`, else $LPAM_SERVICES, else systemd where it runs."""
+    from reconciler.adapters.services.choice import choose
+
+    if choose(override=override, env=env) == "systemd":
+        from reconciler.adapters.services.systemd import SystemdServices
+
+        return SystemdServices(layout)
+    from reconciler.adapters.services.supervisor import SupervisorServices
+
+    return SupervisorServices(layout)
+
+
+def dependency_ports(layout: Layout, env: Mapping[str, str] = os.environ) -> DependencyPorts:
+    """apt, pip (environments made from $LPAM_PYTHON, default the system's python3) and
+    catkin: the ports an app's dependencies are prepared through."""
+    from reconciler.adapters.apt import AptPackages
+    from reconciler.adapters.catkin import CatkinWorkspace
+    from reconciler.adapters.pythonenv import VenvPythonEnvs
+    from reconciler.execution.ports import DependencyPorts
+
+    return DependencyPorts(packages=AptPackages(),
+                           envs=VenvPythonEnvs(layout.venvs, python=env.get("LPAM_PYTHON")),
+                           workspace=CatkinWorkspace)
+
+
+@dataclass
+class Machine:
+    """The installation under `layout`, with the ports use cases act through."""
+
+    layout: Layout
+    services: Services
+    deps: DependencyPorts
+    network_timeout: float = 60.0
+    clock: Callable[[], datetime] = field(default=now)
+
+    @classmethod
+    def at(cls, layout: Layout, *, services: str | None = None,
+           network_timeout: float = 60.0) -> Machine:
+        return cls(layout, services_for(layout, services), dependency_ports(layout),
+                   network_timeout=network_timeout)
+
+    def store(self) -> GitStore:
+        from reconciler.adapters.git import GitStore
+
+        return GitStore(self.layout, timeout=self.network_timeout)
+
+    def context(self, store: GitStore, lock: Lock, *, command: str, script_timeout: float,
+                report: Report) -> tuple[Context, Path]:
+        """What the steps of one run may touch, and the log of its scripts and commands."""
+        from reconciler.adapters.scripts import ScriptRunner
+        from reconciler.execution.context import Context
+        from reconciler.state import read_record
+
+        started = self.clock().strftime("%Y%m%dT%H%M%SZ")
+        log = self.layout.logs / f"{command}-{started}-{os.getpid()}.log"
+        ctx = Context(
+            layout=self.layout, store=store, clock=self.clock,
+            record=read_record(self.layout), services=self.services,
+            scripts=ScriptRunner(root=self.layout.root, log=log, runs=self.layout.runs,
+                                 timeout=script_timeout, lock_fd=lock.fd, note=lock.note),
+            deps=self.deps, log=CommandLog(log, report),
+        )
+        return ctx, log
+
+
+class CommandLog:
+    """The output of a long step (apt, pip, catkin_make): each line appended to the run's
+    log, and reported as `Output` for whoever watches."""
+
+    def __init__(self, path: Path, report: Report) -> None:
+        self._path = path
+        self._report = report
+
+    def __call__(self, line: str) -> None:
+        fd = open_append(self._path)
+        try:
+            os.write(fd, (line + "\n").encode("utf-8", "replace"))
+        finally:
+            os.close(fd)
+        self._report(Output(line))

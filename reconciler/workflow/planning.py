@@ -1,0 +1,124 @@
+"""The plan use case: resolve the desired state, observe the machine, make the plan.
+
+A plan is exact: it fetches the commits it needs into the store's object database, under
+the apply lock (a fetch is a write), never moving a checkout. Beside a running apply, or
+offline, it plans from what is local and says so; such a plan cannot be saved. While a
+rollback holds the machine, the plan proposes nothing — unless the rollback was cut off,
+and then its steps are what finishes it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from reconciler import __version__
+from reconciler.errors import LockError, LpamError
+from reconciler.workflow.events import Note, Phase, Report
+from reconciler.workflow.machine import Machine
+
+if TYPE_CHECKING:
+    from reconciler.adapters.git import GitStore
+    from reconciler.observe.targets import Fetch
+    from schemas.desired import DesiredState
+    from schemas.plan import Plan
+    from schemas.record import StateRecord
+
+
+def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
+         offline: bool = False, out: Path | None = None, lock_timeout: float = 10.0) -> Plan:
+    """`lpam plan`: exact when it can take the lock, from what is local beside a running
+    apply (said in a note) or when `offline`. `out` saves the plan (an exact one only)."""
+    from reconciler.execution.lock import apply_lock, holder
+    from reconciler.observe.targets import Fetch
+
+    if offline and out is not None:
+        raise LpamError("an --offline plan cannot be saved: it may hold values known only "
+                        "after a fetch", hint="drop --offline to save an exact plan")
+    if offline:
+        return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
+                       busy=holder(machine.layout))[1]
+    try:
+        with apply_lock(machine.layout, timeout=lock_timeout):
+            _, made = prepare(machine, path, desired, fetch=Fetch.OBJECTS, report=report)
+            if out is not None:
+                from reconciler.atomic import write_atomic
+
+                write_atomic(out, made.model_dump_json(indent=2) + "\n")
+            return made
+    except LockError:
+        busy = holder(machine.layout)
+        if out is not None or busy is None:
+            raise
+        return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
+                       busy=busy)[1]
+
+
+def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch,
+            report: Report, busy: str | None = None) -> tuple[GitStore, Plan]:
+    """Resolve the desired state, observe the machine and plan; `path` anchors relative
+    URLs. `busy` is what holds the lock when the caller planned beside a running apply."""
+    from reconciler.legacy.appdir import libpanda_user
+    from reconciler.observe.machine import observe
+    from reconciler.observe.targets import Fetch, resolve
+    from reconciler.planning.plan import make_plan
+    from reconciler.state import read_record
+
+    layout = machine.layout
+    store = machine.store()
+    record = read_record(layout)
+    hold = hold_reason(record, desired)
+    if hold is not None:  # a rollback holds: nothing to resolve, no network needed
+        return store, _held_plan(machine, store, record, hold, report)
+    targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
+                      default_user=libpanda_user(layout), root=layout.root)
+    report(Phase("resolve"))
+    observed = observe(layout, store, targets, machine.services, machine.deps)
+    report(Phase("observe"))
+    if busy is not None:
+        report(Note(f"an apply is in progress ({busy}); this plan shows the machine as it "
+                    "stands now, part-way through it"))
+    made = make_plan(targets, observed, now=machine.clock(), lpam_version=__version__,
+                     offline=fetch is Fetch.OFFLINE, hold=hold)
+    report(Phase("plan"))
+    if busy is None and observed.interrupted:
+        cut = ", ".join(observed.interrupted)
+        # The step's script may have finished after lpam died (its guard wrote the exit
+        # code): then the record is settled and nothing is left to run again.
+        rest = ("the steps below finish it" if made.steps
+                else "its script finished since, so nothing is left to redo")
+        report(Note(f"the last apply was interrupted during {cut}; {rest}"))
+    return store, made
+
+
+def _held_plan(machine: Machine, store: GitStore, record: StateRecord, hold: str,
+               report: Report) -> Plan:
+    """While a rollback holds: the steps that finish it if it was cut off, else nothing."""
+    from reconciler.observe.machine import observe
+    from reconciler.planning.lifecycle import target_of
+    from reconciler.planning.model import Observed, RepoTarget, Targets
+    from reconciler.planning.plan import make_plan
+
+    target = record.hold.target if record.hold is not None else None
+    if target is not None:
+        repos = tuple(RepoTarget(r.key, r.url, r.ref, r.commit) for r in record.repositories)
+        targets = Targets(repos, target_of(target.installed()))
+        made = make_plan(targets, observe(machine.layout, store, targets, machine.services),
+                         now=machine.clock(), lpam_version=__version__)
+        if made.steps:
+            report(Note(f"the rollback to {target.app} ({target.generation}) was cut off; "
+                        "the steps below finish it"))
+            return made
+    return make_plan(Targets((), None), Observed(record=record, repositories={}),
+                     now=machine.clock(), lpam_version=__version__, hold=hold)
+
+
+def hold_reason(record: StateRecord, desired: DesiredState) -> str | None:
+    """The reason the machine is held by a rollback, while the desired state is unchanged."""
+    from reconciler.workflow.operate import desired_fingerprint
+
+    hold = record.hold
+    if hold is None or hold.desired != desired_fingerprint(desired):
+        return None
+    return (f"held by `lpam rollback` at generation {hold.generation}: nothing is proposed "
+            "until the desired state changes (`lpam apply --release` ends the hold)")
