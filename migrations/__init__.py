@@ -23,7 +23,8 @@ from migrations import desired_state_v0_to_v1, state_record_v1_to_v2, state_reco
 from migrations.step import MigrationError, Step
 from reconciler.errors import ConfigError, VersionError
 
-CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 3, "plan": 1}
+CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 3, "plan": 1,
+                           "agent-config": 1, "agent-status": 1}
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
 STEPS: dict[str, dict[str, tuple[str, Step]]] = {
@@ -31,6 +32,8 @@ STEPS: dict[str, dict[str, tuple[str, Step]]] = {
     "state-record": {"1": ("2", state_record_v1_to_v2.upgrade),
                      "2": ("3", state_record_v2_to_v3.upgrade)},
     "plan": {},
+    "agent-config": {},
+    "agent-status": {},
 }
 
 _MISSING_HINTS = {
@@ -38,11 +41,14 @@ _MISSING_HINTS = {
     "state-record": "this state record was not written by lpam; move it aside and run "
     "`lpam apply` to write a new one",
     "plan": "this plan was not written by lpam; make a new one with `lpam plan -o FILE`",
+    "agent-config": "add `version: 1` at the top (see the README's fleet section)",
+    "agent-status": "this status file was not written by lpam; move it aside",
 }
 
 _NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
 
-_LABELS = {"desired-state": "desired state", "state-record": "state record", "plan": "plan"}
+_LABELS = {"desired-state": "desired state", "state-record": "state record", "plan": "plan",
+           "agent-config": "agent configuration", "agent-status": "agent status"}
 
 Position = Callable[[Sequence[str | int]], tuple[int, int]]
 

@@ -132,6 +132,19 @@ def _parser() -> argparse.ArgumentParser:
     rollback.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
                           help="kill an app script running longer than this (default 600)")
 
+    sync = sub.add_parser("sync", parents=[common],
+                          help="one pass of following the desired-state repository")
+    sync.add_argument("--config", type=Path, help="agent.yaml (default: under --root)")
+    sync.add_argument("--fetch-only", action="store_true",
+                      help="fetch the source and what it pins, record, change nothing")
+    sync.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
+    sync.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
+    sync.add_argument(*SERVICES, **SERVICES_OPTIONS)
+    sync.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
+                      help="kill an app script running longer than this (default 600)")
+    sync.add_argument("--keep-generations", type=_at_least_one, default=3, metavar="N",
+                      help="good generations kept on disk for `lpam rollback` (default 3)")
+
     services = sub.add_parser("services", parents=[common],
                               help="the service manager lpam started (supervisord)")
     services.add_argument("action", choices=("shutdown",),
@@ -424,6 +437,27 @@ def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
     return EXIT_OK
 
 
+def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
+    """Exit 0 when applied, with nothing to do, or offline; 1 when the pass failed (the
+    running app untouched, the reason recorded)."""
+    from reconciler.documents import load_agent
+    from reconciler.workflow.applying import ApplyOptions
+    from reconciler.workflow.sync import sync
+
+    config = load_agent(args.config if args.config is not None else layout.agent_config)
+    options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
+                           keep_generations=args.keep_generations)
+    done = sync(_machine(args, layout), config, report=Terminal(), options=options,
+                fetch_only=args.fetch_only)
+    revision = done.revision[:12] if done.revision else "none"
+    print(f"Sync: {done.result} (revision {revision})"
+          + (f": {done.reason}" if done.reason else ""),
+          file=sys.stderr if done.code else sys.stdout)
+    if done.code and done.hint:
+        print(f"  hint: {done.hint}", file=sys.stderr)
+    return done.code
+
+
 def cmd_services(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.adapters.services.supervisor import shutdown
 
@@ -478,6 +512,7 @@ COMMANDS = {
     "validate": cmd_validate,
     "import-lpam": cmd_import,
     "services": cmd_services,
+    "sync": cmd_sync,
     "start": cmd_operate,
     "stop": cmd_operate,
     "restart": cmd_operate,

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ValidationError
 
 from reconciler.errors import ConfigError
 from reconciler.loading import Document, load
+from schemas.agent import AgentConfig
 from schemas.catalog import Catalog, CatalogFault, RawCatalog, normalise
 from schemas.desired import DesiredState
 from schemas.plan import Plan
@@ -87,6 +88,16 @@ def _check_duplicate_repositories(doc: Document, data: dict[str, Any]) -> None:
                 "list each repository once; remove one of the two entries",
             )
         seen[name] = index
+
+
+def load_agent(path: Path) -> AgentConfig:
+    """The agent's configuration (`etc/lpam/agent.yaml`), version-checked and validated."""
+    from migrations import upgrade
+
+    doc = load(path)
+    data = upgrade("agent-config", doc.data, path=doc.path, position=doc.position)
+    config: AgentConfig = _validate(doc, data, AgentConfig, "agent configuration")
+    return config
 
 
 def parse_catalog(path: Path, text: str) -> Catalog:

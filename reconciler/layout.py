@@ -31,6 +31,11 @@ class Layout:
         return self.etc / "desired-state.yaml"
 
     @property
+    def agent_config(self) -> Path:
+        """How this vehicle follows a desired-state repository (`lpam sync`, `lpam agent`)."""
+        return self.etc / "agent.yaml"
+
+    @property
     def var(self) -> Path:
         return self.root / "var" / "lib" / "lpam"
 
@@ -150,6 +155,11 @@ class Layout:
     def replaced(self) -> Path:
         """LPAM's own copies of app folders, kept when lpam puts its link in their place."""
         return self.var / "replaced"
+
+    @property
+    def agent_status(self) -> Path:
+        """What the agent's passes found and did (schemas/agent.py `AgentStatus`)."""
+        return self.var / "status.json"
 
     @property
     def venvs(self) -> Path:

@@ -13,6 +13,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
+from schemas.agent import AgentConfig, AgentStatus
 from schemas.catalog import RawCatalog
 from schemas.desired import DesiredState
 from schemas.plan import Plan
@@ -23,6 +24,8 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "app-catalog.schema.json": RawCatalog,
     "state-record.v3.schema.json": StateRecord,
     "plan.v1.schema.json": Plan,
+    "agent.v1.schema.json": AgentConfig,
+    "agent-status.v1.schema.json": AgentStatus,
 }
 FOLDER = Path(__file__).resolve().parent / "json"
 

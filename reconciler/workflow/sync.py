@@ -1,0 +1,217 @@
+"""The sync use case: one pass of a vehicle following its desired-state repository.
+
+fetch the source → pick this vehicle's file → validate → plan → apply → record. Each
+phase fails on its own, and never at the running app's expense:
+
+- no network: the last fetched revision is applied if it never was, else nothing is done
+  (exit 0, "offline") — a car sees WiFi only at the start or the end of a trip;
+- a document error or a failed apply (a health rollback included): the running app stays,
+  the revision and the reason are recorded, and that revision is not tried again until a
+  new one arrives — a broken commit must not restart the car's app every five minutes;
+- `fetch_only`: fetch the source and the commits it pins, record, change nothing (the
+  pass at shutdown, so that what WiFi brought at the end of a trip applies at the next
+  start).
+
+Relative `url:` paths in the desired state resolve against the source repository's own
+URL, as git resolves a submodule's (`../apps.git` beside the fleet repository, on the
+laptop that serves both).
+"""
+
+from __future__ import annotations
+
+import posixpath
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from reconciler.errors import ConfigError, GitError, HealthError, LpamError
+from reconciler.workflow.applying import ApplyOptions, apply
+from reconciler.workflow.events import Note, Progress, Report
+from reconciler.workflow.machine import Machine
+from schemas.agent import PASSES_KEPT, AgentConfig, AgentStatus, Attempt, Result, check_vehicle
+
+if TYPE_CHECKING:
+    from schemas.desired import DesiredState
+
+SOURCE_KEY = "@source"  # the desired-state repository in the store: never an app's key
+VEHICLE_DIR = "vehicles"
+DEFAULT_FILE = "desired-state.yaml"
+
+
+@dataclass(frozen=True)
+class Synced:
+    """How a pass ended; `code` is the process exit code (0 applied, nothing to do or
+    offline; 1 failed)."""
+
+    result: Result
+    revision: str | None
+    reason: str | None = None
+    hint: str | None = None
+
+    @property
+    def code(self) -> int:
+        return 1 if self.result in ("failed", "rolled back") else 0
+
+
+def sync(machine: Machine, config: AgentConfig, *, report: Report,
+         options: ApplyOptions | None = None, fetch_only: bool = False) -> Synced:
+    """One pass; the outcome is recorded in `status.json` whatever it is."""
+    options = options or ApplyOptions()
+    status = read_status(machine)
+    vehicle = vehicle_id(machine, config)
+    offline = _fetch(machine, config, report)
+    revision = _tip(machine, config)
+    status = status.model_copy(update={"vehicle": vehicle, "desired_revision": revision})
+    if revision is None:
+        why = offline or f"the source has no branch {config.source.branch!r}"
+        return _record(machine, status, Synced("offline" if offline else "failed", None, why))
+    if fetch_only:
+        return _record(machine, status, _fetch_pins(machine, config, vehicle, revision, report))
+    if offline and revision == status.applied_revision:
+        return _record(machine, status, Synced("offline", revision, offline))
+    if status.failed(revision) and revision != status.applied_revision:
+        report(Note(f"revision {revision[:12]} failed before; waiting for a new one"))
+        return _record(machine, status, Synced("nothing to do", revision,
+                                               "this revision failed before"))
+    try:
+        label, desired = _desired(machine, config, vehicle, revision)
+        done = apply(machine, label, desired, options=options, confirm=lambda plan: True,
+                     report=report)
+    except LpamError as exc:
+        failed: Result = "rolled back" if isinstance(exc, HealthError) else "failed"
+        return _record(machine, status, Synced(failed, revision, _reason(exc), exc.hint))
+    status = status.model_copy(update={"applied_revision": revision})
+    outcome: Result = "applied" if done.steps else "nothing to do"
+    report(Progress(f"{outcome}: revision {revision[:12]} ({done.app})"))
+    return _record(machine, status, Synced(outcome, revision))
+
+
+def _reason(exc: LpamError) -> str:
+    """The error as one line, where it is included (file:line:column of a document)."""
+    return f"{exc.where}: {exc.message}" if isinstance(exc, ConfigError) else exc.message
+
+
+def vehicle_id(machine: Machine, config: AgentConfig) -> str:
+    """`vehicle:`, else the content of `vehicle_file:` (under --root), else the hostname."""
+    if config.vehicle is not None:
+        return config.vehicle
+    if config.vehicle_file is not None:
+        from reconciler.reading import read_bounded
+
+        path = machine.layout.root / config.vehicle_file.lstrip("/")
+        try:
+            text = read_bounded(path, limit=256).decode("utf-8", "replace").strip()
+        except FileNotFoundError:
+            raise ConfigError(f"vehicle_file {config.vehicle_file} does not exist",
+                              path=machine.layout.agent_config,
+                              hint="write this vehicle's id there, or set `vehicle:`") from None
+    else:
+        text = socket.gethostname().split(".")[0]
+    try:
+        return check_vehicle(text)
+    except ValueError as exc:
+        raise ConfigError(str(exc), path=machine.layout.agent_config,
+                          hint="set `vehicle:` in agent.yaml to a valid id") from None
+
+
+def _fetch(machine: Machine, config: AgentConfig, report: Report) -> str | None:
+    """Fetch the source under the lock (a fetch is a write); the reason when offline."""
+    from reconciler.execution.lock import apply_lock
+
+    try:
+        with apply_lock(machine.layout, timeout=60.0):
+            machine.store().fetch(SOURCE_KEY, config.source.url)
+    except GitError as exc:
+        report(Note(f"offline: {exc.message}"))
+        return exc.message
+    return None
+
+
+def _tip(machine: Machine, config: AgentConfig) -> str | None:
+    """The followed branch's commit as the last fetch from this source saw it."""
+    store = machine.store()
+    if store.origin_url(SOURCE_KEY) != config.source.url:
+        return None  # fetched from another source before: not this one's revision
+    refs = store.local_refs(SOURCE_KEY)
+    return None if refs is None else refs.resolve(config.source.branch)
+
+
+def _desired(machine: Machine, config: AgentConfig, vehicle: str,
+             revision: str) -> tuple[Path, DesiredState]:
+    """This vehicle's desired state at `revision`, relative URLs made absolute."""
+    from reconciler.documents import desired_from
+    from reconciler.loading import load
+
+    store = machine.store()
+    for name in (f"{VEHICLE_DIR}/{vehicle}.yaml", DEFAULT_FILE):
+        data = store.read_file(SOURCE_KEY, revision, name)
+        if data is not None:
+            repo = config.source.url.rstrip("/").rsplit("/", 1)[-1]  # fleet.git@c92f32f2ab56/…
+            label = Path(f"{repo}@{revision[:12]}") / name
+            desired = desired_from(load(label, data.decode("utf-8", "replace")))
+            return label, _anchored(desired, config.source.url)
+    raise ConfigError(f"neither {VEHICLE_DIR}/{vehicle}.yaml nor {DEFAULT_FILE} is in the "
+                      f"source at {revision[:12]}", path=machine.layout.agent_config,
+                      hint=f"commit a desired state for this vehicle ({vehicle}) or for all")
+
+
+def _anchored(desired: DesiredState, source: str) -> DesiredState:
+    repos = []
+    for spec in desired.repositories:
+        if spec.url is not None and "://" not in spec.url and not spec.url.startswith("/"):
+            spec = spec.model_copy(update={"url": join_url(source, spec.url)})
+        repos.append(spec)
+    return desired.model_copy(update={"repositories": repos})
+
+
+def join_url(base: str, relative: str) -> str:
+    """`relative` against the repository at `base`, as git joins a submodule's URL: from
+    the repository's own location (`../apps.git` is its sibling)."""
+    if "://" in base:
+        scheme, rest = base.split("://", 1)
+        host, _, path = rest.partition("/")
+        joined = posixpath.normpath(posixpath.join("/" + path, relative))
+        return f"{scheme}://{host}{joined}"
+    return posixpath.normpath(posixpath.join(base, relative))
+
+
+def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: str,
+                report: Report) -> Synced:
+    """Bring the commits the desired state pins into the store (objects only), so that the
+    next start can apply with no network."""
+    from reconciler.workflow.planning import plan
+
+    try:
+        label, desired = _desired(machine, config, vehicle, revision)
+        plan(machine, label, desired, report=report)
+    except LpamError as exc:
+        return Synced("fetched", revision, f"the source was fetched; its pins not: "
+                      f"{exc.message}")
+    return Synced("fetched", revision)
+
+
+def read_status(machine: Machine) -> AgentStatus:
+    from reconciler.documents import parse_json
+    from reconciler.loading import read_text
+
+    path = machine.layout.agent_status
+    if not path.exists():
+        return AgentStatus()
+    return parse_json("agent-status", read_text(path), path, AgentStatus,
+                      hint="move the file aside; the next pass writes a new one")
+
+
+def _record(machine: Machine, status: AgentStatus, outcome: Synced) -> Synced:
+    from reconciler.atomic import write_atomic
+
+    attempt = Attempt(time=machine.clock().isoformat(timespec="seconds"),
+                      revision=outcome.revision, result=outcome.result,
+                      reason=outcome.reason)
+    updated = status.model_copy(update={
+        "last_attempt": attempt if outcome.result != "nothing to do" or outcome.reason is None
+        else status.last_attempt,
+        "passes": [*status.passes, attempt][-PASSES_KEPT:],
+    })
+    write_atomic(machine.layout.agent_status, updated.model_dump_json(indent=2) + "\n")
+    return outcome

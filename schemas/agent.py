@@ -1,0 +1,116 @@
+"""The agent's configuration (`<root>/etc/lpam/agent.yaml`) and what it records of its
+passes (`<root>/var/lib/lpam/status.json`).
+
+```yaml
+version: 1
+source: {url: "https://github.com/our-lab/fleet-state", branch: main}
+vehicle_file: /etc/libpanda.d/vin      # or `vehicle: rav4-07`; default: the hostname
+interval_seconds: 300
+```
+
+In the source repository, `vehicles/<id>.yaml` is this vehicle's desired state when it
+exists, else `desired-state.yaml` at its root.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StrictStr, ValidationInfo, field_validator
+
+from schemas.names import check_ref, check_url
+
+CURRENT_VERSION = 1
+_VEHICLE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,62}$")
+PASSES_KEPT = 10
+
+
+def check_vehicle(value: str) -> str:
+    """A vehicle id names a file (`vehicles/<id>.yaml`) and a branch (`status/<id>`)."""
+    if not _VEHICLE.match(value) or ".." in value or value.endswith((".", ".lock")):
+        raise ValueError(f"vehicle id {value!r}: use letters, digits, '_', '-', '.' (at most "
+                         "63 characters, e.g. rav4-07 or a VIN)")
+    return value
+
+
+class Source(BaseModel):
+    """The desired-state repository the vehicle follows."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    url: StrictStr = Field(description="https://, git://, ssh://, file:// URL or a path")
+    branch: StrictStr = Field(default="main", description="the branch the vehicle follows")
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, value: str) -> str:
+        return check_url(value)
+
+    @field_validator("branch")
+    @classmethod
+    def _branch(cls, value: str) -> str:
+        return check_ref(value)
+
+
+class AgentConfig(BaseModel):
+    """How this vehicle follows its desired state."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    version: Literal[1] = Field(description="document version; this is version 1")
+    source: Source
+    vehicle: StrictStr | None = Field(default=None, description="this vehicle's id")
+    vehicle_file: StrictStr | None = Field(
+        default=None, description="a file holding the id (e.g. /etc/libpanda.d/vin)")
+    interval_seconds: float = Field(default=300, ge=10, le=86400,
+                                    description="seconds between passes of `lpam agent`")
+
+    @field_validator("vehicle")
+    @classmethod
+    def _vehicle(cls, value: str | None) -> str | None:
+        return None if value is None else check_vehicle(value)
+
+    @field_validator("vehicle_file")
+    @classmethod
+    def _vehicle_file(cls, value: str | None, info: ValidationInfo) -> str | None:
+        if value is not None and (not value.startswith("/") or ".." in value.split("/")):
+            raise ValueError("vehicle_file must be an absolute path without '..'")
+        if value is not None and info.data.get("vehicle") is not None:
+            raise ValueError("give `vehicle:` or `vehicle_file:`, not both")
+        return value
+
+
+Result = Literal["applied", "nothing to do", "offline", "failed", "rolled back", "fetched"]
+
+
+class Attempt(BaseModel):
+    """One pass: when, which revision of the source, how it ended and why."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    time: str
+    revision: str | None
+    result: Result
+    reason: str | None = None
+
+
+class AgentStatus(BaseModel):
+    """What the agent knows of its source: the revision it would apply, the last one it
+    applied, the last attempt (a failed revision is not tried again until a new one
+    arrives), and the last passes."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    version: Literal[1] = 1
+    vehicle: str | None = None
+    desired_revision: str | None = None
+    applied_revision: str | None = None
+    last_attempt: Attempt | None = None
+    passes: list[Attempt] = Field(default_factory=list)
+
+    def failed(self, revision: str) -> bool:
+        """Whether `revision` was tried and failed (so it is not tried again)."""
+        last = self.last_attempt
+        return last is not None and last.revision == revision and \
+            last.result in ("failed", "rolled back")

@@ -1,0 +1,130 @@
+"""`lpam sync`: one pass of a vehicle following its desired-state repository, end to end
+with the real CLI, a real git daemon serving the fleet's repository and the app
+repository beside it, and real app scripts that leave a trace.
+
+What a user checks: a new commit is applied; a broken one leaves the app running, is
+recorded with its reason and not retried, and the next good one is applied; a vehicle's
+own file wins over the fleet's; what a fetch-only pass brought is applied with no network.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.gitserver import GitDaemon, RepoBuilder
+from tests.integration.apps import Lpam, apps_repo
+
+
+def fleet_state(app: str, pin: str | None = None, **params: str) -> str:
+    lines = ["version: 1", "repositories:", "  - url: ../apps.git"]  # beside the fleet repo
+    if pin is not None:
+        lines.append(f"    ref: {pin}")
+    lines += ["app:", f"  name: {app}"]
+    if params:
+        lines += ["  params:"] + [f'    {k}: "{v}"' for k, v in params.items()]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.fixture
+def apps(make_repo: Callable[[str], RepoBuilder]) -> str:
+    """The app repository beside the fleet's; its commit."""
+    return apps_repo(make_repo("apps.git"))
+
+
+@pytest.fixture
+def fleet(make_repo: Callable[[str], RepoBuilder], apps: str) -> RepoBuilder:
+    repo = make_repo("fleet.git")
+    repo.commit("alpha for every car", {"desired-state.yaml": fleet_state("alpha", MODE="one")})
+    repo.push()
+    return repo
+
+
+@pytest.fixture
+def car(tmp_path: Path, git_daemon: GitDaemon) -> Lpam:
+    lpam = Lpam(tmp_path / "root")
+    config = lpam.root / "etc/lpam/agent.yaml"
+    config.parent.mkdir(parents=True)
+    config.write_text(f"version: 1\nsource: {{url: {git_daemon.url('fleet.git')}, "
+                      "branch: main}\nvehicle: rav4-07\n")
+    return lpam
+
+
+def status(car: Lpam) -> dict[str, Any]:
+    found: dict[str, Any] = json.loads((car.root / "var/lib/lpam/status.json").read_text())
+    return found
+
+
+def test_a_new_commit_is_applied_and_a_second_pass_has_nothing_to_do(
+    car: Lpam, fleet: RepoBuilder,
+) -> None:
+    done = car("sync")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "Sync: applied" in done.stdout
+    assert car.events() == ["alpha:install:one", "alpha:start:one"]
+    head = fleet.rev("HEAD")
+    assert status(car)["applied_revision"] == head == status(car)["desired_revision"]
+    again = car("sync")
+    assert again.returncode == 0 and "Sync: nothing to do" in again.stdout
+    assert car.events() == ["alpha:install:one", "alpha:start:one"]
+    fleet.commit("faster", {"desired-state.yaml": fleet_state("alpha", MODE="two")})
+    fleet.push()
+    assert car("sync").returncode == 0
+    assert car.events()[-2:] == ["alpha:stop:one", "alpha:start:two"]
+
+
+def test_a_broken_commit_is_recorded_not_retried_and_the_next_good_one_applies(
+    car: Lpam, fleet: RepoBuilder,
+) -> None:
+    assert car("sync").returncode == 0
+    fleet.commit("typo", {"desired-state.yaml": fleet_state("alpha") + "aap: beta\n"})
+    fleet.push()
+    broken = fleet.rev("HEAD")
+    failed = car("sync")
+    assert failed.returncode == 1
+    assert "unknown key 'aap'" in failed.stderr and "fleet.git@" in failed.stderr
+    assert "/desired-state.yaml:6:1: unknown key 'aap'" in failed.stderr
+    assert car.events() == ["alpha:install:one", "alpha:start:one"]  # still running
+    last = status(car)["last_attempt"]
+    assert (last["revision"], last["result"]) == (broken, "failed")
+    assert "unknown key 'aap'" in last["reason"]
+    retry = car("sync")  # the same broken revision: not tried again
+    assert retry.returncode == 0 and "failed before" in retry.stdout + retry.stderr
+    assert status(car)["last_attempt"]["revision"] == broken
+    fleet.commit("beta now", {"desired-state.yaml": fleet_state("beta")})
+    fleet.push()
+    fixed = car("sync")
+    assert fixed.returncode == 0, fixed.stderr
+    assert car.events()[-4:] == ["alpha:stop:one", "alpha:uninstall:one", "beta:install:",
+                                 "beta:start:"]
+    assert status(car)["applied_revision"] == fleet.rev("HEAD")
+
+
+def test_a_vehicles_own_file_wins_over_the_fleets(car: Lpam, fleet: RepoBuilder) -> None:
+    fleet.commit("rav4-07 runs beta", {"vehicles/rav4-07.yaml": fleet_state("beta"),
+                                       "vehicles/rav4-01.yaml": fleet_state("alpha")})
+    fleet.push()
+    assert car("sync").returncode == 0
+    assert car.events() == ["beta:install:", "beta:start:"]
+
+
+def test_what_a_fetch_only_pass_brought_is_applied_with_no_network(
+    car: Lpam, fleet: RepoBuilder, git_daemon: GitDaemon, apps: str,
+) -> None:
+    assert car("sync").returncode == 0
+    fleet.commit("pinned, beta", {"desired-state.yaml": fleet_state("beta", pin=apps)})
+    fleet.push()
+    fetched = car("sync", "--fetch-only")
+    assert fetched.returncode == 0 and "Sync: fetched" in fetched.stdout, fetched.stderr
+    assert car.events() == ["alpha:install:one", "alpha:start:one"]  # nothing changed yet
+    git_daemon.stop()  # the end of the trip: no WiFi any more
+    offline = car("sync", "--network-timeout", "5")
+    assert offline.returncode == 0, offline.stdout + offline.stderr
+    assert "Sync: applied" in offline.stdout
+    assert car.events()[-2:] == ["beta:install:", "beta:start:"]
+    again = car("sync", "--network-timeout", "5")
+    assert again.returncode == 0 and "Sync: offline" in again.stdout
