@@ -145,6 +145,16 @@ def _parser() -> argparse.ArgumentParser:
     sync.add_argument("--keep-generations", type=_at_least_one, default=3, metavar="N",
                       help="good generations kept on disk for `lpam rollback` (default 3)")
 
+    agent = sub.add_parser("agent", parents=[common],
+                           help="follow the desired-state repository: sync passes forever")
+    agent.add_argument("--config", type=Path, help="agent.yaml (default: under --root)")
+    agent.add_argument("--once", action="store_true", help="one pass, then exit with its code")
+    agent.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
+    agent.add_argument(*SERVICES, **SERVICES_OPTIONS)
+    agent.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
+                       help="kill an app script running longer than this (default 600)")
+    agent.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
+
     services = sub.add_parser("services", parents=[common],
                               help="the service manager lpam started (supervisord)")
     services.add_argument("action", choices=("shutdown",),
@@ -458,6 +468,32 @@ def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
     return done.code
 
 
+def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
+    """SIGTERM (systemd stopping the agent) stops it between passes at once, and during a
+    pass before the next step that is not part of a cutover: never mid-cutover."""
+    from reconciler.documents import load_agent
+    from reconciler.workflow.agent import Agent
+    from reconciler.workflow.applying import ApplyOptions
+
+    config = load_agent(args.config if args.config is not None else layout.agent_config)
+    options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout)
+    agent = Agent(_machine(args, layout), config, report=_agent_report, options=options)
+    signal.signal(signal.SIGTERM, lambda signum, frame: agent.stop.set())
+    return agent.run(once=args.once)
+
+
+def _agent_report(event: Event) -> None:
+    """The agent's events as log lines (its output goes to the journal)."""
+    from reconciler.workflow.events import Note, Planned, Progress
+
+    if isinstance(event, Note):
+        print(f"note: {event.text}", flush=True)
+    elif isinstance(event, Progress):
+        print(event.text, flush=True)
+    elif isinstance(event, Planned) and event.plan.steps:
+        print(event.plan.summary, flush=True)
+
+
 def cmd_services(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.adapters.services.supervisor import shutdown
 
@@ -513,6 +549,7 @@ COMMANDS = {
     "import-lpam": cmd_import,
     "services": cmd_services,
     "sync": cmd_sync,
+    "agent": cmd_agent,
     "start": cmd_operate,
     "stop": cmd_operate,
     "restart": cmd_operate,

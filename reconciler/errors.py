@@ -132,6 +132,13 @@ class DependencyError(StepError):
     Raised before the cutover: the running app is untouched."""
 
 
+class StopRequested(LpamError):
+    """A stop was asked for (the agent's SIGTERM) and the apply stopped at a step boundary
+    before its cutover: nothing is half done, and the next pass resumes from the journal."""
+
+    exit_code = 143
+
+
 class HealthError(StepError):
     """The started app did not stay healthy; the apply rolls back to the previous app."""
 

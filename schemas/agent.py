@@ -81,7 +81,8 @@ class AgentConfig(BaseModel):
         return value
 
 
-Result = Literal["applied", "nothing to do", "offline", "failed", "rolled back", "fetched"]
+Result = Literal["applied", "nothing to do", "offline", "failed", "rolled back", "fetched",
+                 "stopped"]
 
 
 class Attempt(BaseModel):

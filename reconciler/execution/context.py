@@ -38,6 +38,7 @@ class Context:
     sleep: Callable[[float], None] = time.sleep
     deps: DependencyPorts | None = None
     log: Log = field(default=lambda line: None)  # long steps' output: the apply log
+    stop_requested: Callable[[], bool] = field(default=lambda: False)
 
     def dependencies(self) -> DependencyPorts:
         if self.deps is None:  # a caller that plans dependencies must give their ports

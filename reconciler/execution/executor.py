@@ -17,7 +17,7 @@ import uuid
 from collections.abc import Callable
 
 from reconciler import generations
-from reconciler.errors import HealthError, LpamError, StepError
+from reconciler.errors import HealthError, LpamError, StepError, StopRequested
 from reconciler.execution.context import Context
 from reconciler.execution.journal import Journal
 from reconciler.execution.steps import RUNNERS, prune
@@ -39,6 +39,11 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
     previous = ctx.record.app
     total = len(plan.steps)
     for number, step in enumerate(plan.steps, 1):
+        if step.phase is not Phase.CUTOVER and ctx.stop_requested():
+            # A cutover that started is never interrupted; before it, stopping is safe.
+            journal.close(ctx.clock())
+            raise StopRequested(f"stopped on request before {step.id}; nothing on the "
+                                "running app was changed", hint="the next pass resumes")
         progress(f"[{number}/{total}] {step.id} …")
         try:
             _journalled(step, step.id, ctx, journal)

@@ -67,6 +67,7 @@ class Machine:
     deps: DependencyPorts
     network_timeout: float = 60.0
     clock: Callable[[], datetime] = field(default=now)
+    stop_requested: Callable[[], bool] = field(default=lambda: False)  # the agent's SIGTERM
 
     @classmethod
     def at(cls, layout: Layout, *, services: str | None = None,
@@ -93,7 +94,7 @@ class Machine:
             record=read_record(self.layout), services=self.services,
             scripts=ScriptRunner(root=self.layout.root, log=log, runs=self.layout.runs,
                                  timeout=script_timeout, lock_fd=lock.fd, note=lock.note),
-            deps=self.deps, log=CommandLog(log, report),
+            deps=self.deps, log=CommandLog(log, report), stop_requested=self.stop_requested,
         )
         return ctx, log
 

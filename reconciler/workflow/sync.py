@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.errors import ConfigError, GitError, HealthError, LpamError
+from reconciler.errors import ConfigError, GitError, HealthError, LpamError, StopRequested
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.machine import Machine
@@ -78,6 +78,8 @@ def sync(machine: Machine, config: AgentConfig, *, report: Report,
         label, desired = _desired(machine, config, vehicle, revision)
         done = apply(machine, label, desired, options=options, confirm=lambda plan: True,
                      report=report)
+    except StopRequested as exc:  # not a failure: the next pass tries the revision again
+        return _record(machine, status, Synced("stopped", revision, exc.message))
     except LpamError as exc:
         failed: Result = "rolled back" if isinstance(exc, HealthError) else "failed"
         return _record(machine, status, Synced(failed, revision, _reason(exc), exc.hint))

@@ -10,48 +10,11 @@ own file wins over the fleet's; what a fetch-only pass brought is applied with n
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
-import pytest
-
 from tests.gitserver import GitDaemon, RepoBuilder
-from tests.integration.apps import Lpam, apps_repo
-
-
-def fleet_state(app: str, pin: str | None = None, **params: str) -> str:
-    lines = ["version: 1", "repositories:", "  - url: ../apps.git"]  # beside the fleet repo
-    if pin is not None:
-        lines.append(f"    ref: {pin}")
-    lines += ["app:", f"  name: {app}"]
-    if params:
-        lines += ["  params:"] + [f'    {k}: "{v}"' for k, v in params.items()]
-    return "\n".join(lines) + "\n"
-
-
-@pytest.fixture
-def apps(make_repo: Callable[[str], RepoBuilder]) -> str:
-    """The app repository beside the fleet's; its commit."""
-    return apps_repo(make_repo("apps.git"))
-
-
-@pytest.fixture
-def fleet(make_repo: Callable[[str], RepoBuilder], apps: str) -> RepoBuilder:
-    repo = make_repo("fleet.git")
-    repo.commit("alpha for every car", {"desired-state.yaml": fleet_state("alpha", MODE="one")})
-    repo.push()
-    return repo
-
-
-@pytest.fixture
-def car(tmp_path: Path, git_daemon: GitDaemon) -> Lpam:
-    lpam = Lpam(tmp_path / "root")
-    config = lpam.root / "etc/lpam/agent.yaml"
-    config.parent.mkdir(parents=True)
-    config.write_text(f"version: 1\nsource: {{url: {git_daemon.url('fleet.git')}, "
-                      "branch: main}\nvehicle: rav4-07\n")
-    return lpam
+from tests.integration.apps import Lpam
+from tests.integration.conftest import fleet_state
 
 
 def status(car: Lpam) -> dict[str, Any]:

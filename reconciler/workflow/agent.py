@@ -1,0 +1,68 @@
+"""The agent: `lpam sync` passes forever, as a vehicle follows its desired-state repository.
+
+Between passes it waits the configured interval with random jitter (a fleet that booted
+together must not fetch together), and after failed passes it waits longer, doubling up to
+a cap (a broken server is not hammered; a failed revision is not retried anyway, see
+workflow/sync.py). A stop (SIGTERM from systemd at shutdown) is honoured between passes
+at once, and during a pass at the next step boundary before a cutover: a cutover that
+started always finishes, so the car is never left without its app by a shutdown.
+"""
+
+from __future__ import annotations
+
+import random
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from reconciler.workflow.applying import ApplyOptions
+from reconciler.workflow.events import Progress, Report
+from reconciler.workflow.machine import Machine
+from reconciler.workflow.sync import Synced, sync
+from schemas.agent import AgentConfig
+
+JITTER = 0.1  # ± this fraction of the wait
+BACKOFF_CAP = 8  # the wait after failures grows to at most this many intervals
+
+
+def next_wait(interval: float, failures: int, draw: float) -> float:
+    """Seconds until the next pass: the interval, doubled per failed pass in a row up to
+    `BACKOFF_CAP` intervals, ± `JITTER` by `draw` in [0, 1)."""
+    factor: int = min(2 ** max(failures, 0), BACKOFF_CAP)
+    return float(interval * factor * (1 - JITTER + 2 * JITTER * draw))
+
+
+@dataclass
+class Agent:
+    """Runs passes until `stop` is set. `wait` sleeps until a timeout or the stop, and says
+    whether the stop came (threading.Event.wait, or a test's clock)."""
+
+    machine: Machine
+    config: AgentConfig
+    report: Report
+    options: ApplyOptions = field(default_factory=ApplyOptions)
+    stop: threading.Event = field(default_factory=threading.Event)
+    draw: Callable[[], float] = random.random
+    passes: list[Synced] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.machine.stop_requested = self.stop.is_set
+
+    def wait(self, seconds: float) -> bool:
+        return self.stop.wait(seconds)
+
+    def run(self, *, once: bool = False) -> int:
+        """Passes until stopped (exit 0), or one pass (its exit code) when `once`."""
+        failures = 0
+        while not self.stop.is_set():
+            done = sync(self.machine, self.config, report=self.report, options=self.options)
+            self.passes.append(done)
+            if once:
+                return done.code
+            failures = failures + 1 if done.code else 0
+            seconds = next_wait(self.config.interval_seconds, failures, self.draw())
+            self.report(Progress(f"next pass in {seconds:.0f} s"))
+            if self.wait(seconds):
+                break
+        self.report(Progress("agent stopped"))
+        return 0
