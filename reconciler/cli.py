@@ -155,6 +155,11 @@ def _parser() -> argparse.ArgumentParser:
                        help="kill an app script running longer than this (default 600)")
     agent.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
 
+    install = sub.add_parser("install-agent", parents=[common],
+                             help="install the systemd units that run the agent on this car")
+    install.add_argument("--config", type=Path, help="agent.yaml (default: under --root)")
+    install.add_argument(*SERVICES, **SERVICES_OPTIONS)
+
     services = sub.add_parser("services", parents=[common],
                               help="the service manager lpam started (supervisord)")
     services.add_argument("action", choices=("shutdown",),
@@ -482,6 +487,24 @@ def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
     return agent.run(once=args.once)
 
 
+def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
+    """The units run this very lpam (its interpreter, absolute) on this root; agent.yaml
+    must be valid first, so a car is never set to follow a source it cannot read."""
+    from reconciler.documents import load_agent
+    from reconciler.workflow.agent import install_agent
+
+    config_path = args.config if args.config is not None else layout.agent_config
+    config = load_agent(config_path)
+    command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
+    other = str(config_path.resolve()) if args.config is not None else None
+    for path in install_agent(_machine(args, layout), command, config=other,
+                              report=Terminal()):
+        print(f"Wrote {path}")
+    print(f"The agent follows {config.source.url} ({config.source.branch}) every "
+          f"{config.interval_seconds:g} s, and fetches at shutdown.")
+    return EXIT_OK
+
+
 def _agent_report(event: Event) -> None:
     """The agent's events as log lines (its output goes to the journal)."""
     from reconciler.workflow.events import Note, Planned, Progress
@@ -550,6 +573,7 @@ COMMANDS = {
     "services": cmd_services,
     "sync": cmd_sync,
     "agent": cmd_agent,
+    "install-agent": cmd_install_agent,
     "start": cmd_operate,
     "stop": cmd_operate,
     "restart": cmd_operate,

@@ -66,3 +66,27 @@ class Agent:
                 break
         self.report(Progress("agent stopped"))
         return 0
+
+
+def install_agent(machine: Machine, command: list[str], *, config: str | None = None,
+                  report: Report) -> list[str]:
+    """Write the agent's systemd units (adapters/services/agentunits.py); where systemd
+    runs, enable and start them. Returns the unit files written."""
+    from reconciler.adapters.services.agentunits import agent_units
+    from reconciler.adapters.services.systemd import SystemdServices
+    from reconciler.atomic import write_atomic
+    from reconciler.workflow.events import Note
+
+    units = agent_units(command, config)
+    written = []
+    for name, text in units.items():
+        path = machine.layout.systemd_units / f"{name}.service"
+        if isinstance(machine.services, SystemdServices):
+            machine.services.install_text(name, text, start=True)
+        else:
+            write_atomic(path, text)
+        written.append(str(path))
+    if not isinstance(machine.services, SystemdServices):
+        report(Note("systemd does not run the apps here: the units were written, not "
+                    "enabled (`lpam agent` can run in a terminal instead)"))
+    return written

@@ -432,3 +432,43 @@ def test_check_verifies_the_unit_offline_and_asks_systemctl_nothing(
         services.check(demo(app_dir, argv=(str(plain),)))
     assert str(tmp_path / "lpam-verify") not in info.value.message
     assert fake.calls() == []
+
+
+def test_install_agent_writes_verified_units_then_enables_and_starts_them(
+    fake: Fake, tmp_path: Path,
+) -> None:
+    """`lpam install-agent` on a car: both units pass `systemd-analyze verify` with nothing
+    said, and are enabled and started through (the recording) systemctl."""
+    root = tmp_path / "root"
+    config = root / "etc/lpam/agent.yaml"
+    config.parent.mkdir(parents=True)
+    config.write_text("version: 1\nsource: {url: 'git://192.168.4.1/fleet.git'}\n"
+                      "vehicle: rav4-07\n")
+    done = subprocess.run([sys.executable, "-m", "reconciler", "--root", str(root),
+                           "install-agent", "--services", "systemd"],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    units = root / "etc/systemd/system"
+    agent, fetch = units / "lpam-agent.service", units / "lpam-agent-fetch.service"
+    assert verify(agent) == "" and verify(fetch) == ""
+    assert f'ExecStart="{sys.executable}" "-m" "reconciler" "--root" "{root}" "agent"' in \
+        agent.read_text()
+    assert '"sync" "--fetch-only"' in fetch.read_text() and "ExecStop=" in fetch.read_text()
+    calls = [c for c in fake.calls() if c[0] == "systemctl"]
+    for name in ("lpam-agent.service", "lpam-agent-fetch.service"):
+        assert ["systemctl", "--no-reload", "enable", "--", name] in calls
+        assert ["systemctl", "start", "--", name] in calls
+
+
+def test_install_agent_refuses_a_bad_agent_yaml_and_writes_nothing(
+    fake: Fake, tmp_path: Path,
+) -> None:
+    root = tmp_path / "root"
+    config = root / "etc/lpam/agent.yaml"
+    config.parent.mkdir(parents=True)
+    config.write_text("version: 1\nsource: {url: 'git://h/fleet.git'}\nvehicle: 'a b'\n")
+    done = subprocess.run([sys.executable, "-m", "reconciler", "--root", str(root),
+                           "install-agent", "--services", "systemd"],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 1 and "agent.yaml:3:1: vehicle: vehicle id" in done.stderr
+    assert not (root / "etc/systemd/system").exists() and fake.calls() == []

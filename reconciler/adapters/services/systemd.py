@@ -111,6 +111,18 @@ class SystemdServices:
             self._systemctl("daemon-reload", unit=name)
         self._systemctl("--no-reload", "enable", "--", name, unit=name)
 
+    def install_text(self, name: str, text: str, *, start: bool = False) -> None:
+        """Install a unit lpam wrote itself that is not an app's (the agent's), enabled,
+        and started when `start`."""
+        unit = _unit(name)
+        path = self.layout.systemd_units / unit
+        if self._ours(path) != text.encode("utf-8"):
+            write_atomic(path, text)
+        self._systemctl("daemon-reload", unit=unit)
+        self._systemctl("--no-reload", "enable", "--", unit, unit=unit)
+        if start:
+            self._systemctl("start", "--", unit, unit=unit)
+
     def uninstall(self, name: str) -> None:
         unit = _unit(name)
         path = self.unit_file(name)
