@@ -207,7 +207,27 @@ def as_json(layout: Layout, *, store: Objects | None = None,
         ],
         "serial": record.serial,
         "lineage": record.lineage,
+        "agent": _agent(layout),
     }
+
+
+def _agent(layout: Layout) -> dict[str, Any] | None:
+    """What the agent's passes recorded (status.json); None on a machine with no agent.
+    A damaged file is reported, not raised: status must always answer."""
+    from reconciler.errors import LpamError
+
+    if not layout.agent_status.exists():
+        return None
+    try:
+        from reconciler.documents import parse_json
+        from reconciler.loading import read_text
+        from schemas.agent import AgentStatus
+
+        found = parse_json("agent-status", read_text(layout.agent_status), layout.agent_status,
+                           AgentStatus, hint="move the file aside")
+    except LpamError as exc:
+        return {"error": exc.message}
+    return found.model_dump(mode="json")
 
 
 def _cell(value: object) -> str:
@@ -229,7 +249,7 @@ def as_table(layout: Layout, *, store: Objects | None = None,
     strays = [f"Installed without a record: {_cell(s.name)} (generation "
               f"{_cell(s.generation)}); `lpam apply` stops and uninstalls it before "
               "installing any app." for s in record.strays]
-    strays += _footer(record, live, manager)
+    strays += _footer(record, live, manager) + _agent_footer(layout)
     if not table:
         return "\n".join(
             ["No app repositories. Write a desired state and run `lpam apply`.", *strays])
@@ -254,6 +274,26 @@ def _footer(record: StateRecord, live: UnitState | None, manager: str | None) ->
         why = f": {last.reason}" if last.reason else ""
         lines.append(f"Last apply: {last.result} at {last.time}{_printable(why)}")
     return lines
+
+
+def _agent_footer(layout: Layout) -> list[str]:
+    """The agent's line under the table: which revision runs, which is wanted, the last pass."""
+    agent = _agent(layout)
+    if agent is None:
+        return []
+    if "error" in agent:
+        return [f"Agent: its status file is unreadable: {_printable(agent['error'])}"]
+
+    def short(revision: object) -> str:
+        return str(revision)[:12] if revision else "none"
+
+    line = (f"Agent ({_cell(agent['vehicle'])}): applied {short(agent['applied_revision'])}, "
+            f"source at {short(agent['desired_revision'])}")
+    last = agent.get("last_attempt")
+    if last is not None:
+        why = f": {last['reason']}" if last.get("reason") else ""
+        line += f"; last pass: {last['result']} at {last['time']}{why}"
+    return [_printable(line)]
 
 
 def _printable(text: str) -> str:

@@ -91,3 +91,25 @@ def test_what_a_fetch_only_pass_brought_is_applied_with_no_network(
     assert car.events()[-2:] == ["beta:install:", "beta:start:"]
     again = car("sync", "--network-timeout", "5")
     assert again.returncode == 0 and "Sync: offline" in again.stdout
+
+
+def test_a_pass_heals_drift_from_the_applied_revision_and_status_shows_the_agent(
+    car: Lpam, fleet: RepoBuilder,
+) -> None:
+    import shutil
+
+    assert car("sync").returncode == 0
+    checkout = car.root / "var/lib/lpam/repositories/apps"
+    shutil.rmtree(checkout)  # someone cleaned up the store behind lpam's back
+    healed = car("sync")
+    assert healed.returncode == 0 and "Sync: applied" in healed.stdout, healed.stderr
+    assert checkout.is_dir()
+    fleet.commit("typo", {"desired-state.yaml": "version: 1\naap: x\n"})
+    fleet.push()
+    assert car("sync").returncode == 1
+    agent = car.status()["agent"]
+    assert agent["vehicle"] == "rav4-07" and agent["last_attempt"]["result"] == "failed"
+    assert agent["desired_revision"] == fleet.rev("HEAD") != agent["applied_revision"]
+    table = car("status").stdout
+    assert f"Agent (rav4-07): applied {agent['applied_revision'][:12]}" in table
+    assert "last pass: failed" in table and "unknown key 'aap'" in table
