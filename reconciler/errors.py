@@ -132,6 +132,10 @@ class DependencyError(StepError):
     Raised before the cutover: the running app is untouched."""
 
 
+class TrustError(LpamError):
+    """A commit the vehicle would apply is not signed by a key it trusts."""
+
+
 class StopRequested(LpamError):
     """A stop was asked for (the agent's SIGTERM) and the apply stopped at a step boundary
     before its cutover: nothing is half done, and the next pass resumes from the journal."""

@@ -6,6 +6,7 @@ version: 1
 source: {url: "https://github.com/our-lab/fleet-state", branch: main}
 vehicle_file: /etc/libpanda.d/vin      # or `vehicle: rav4-07`; default: the hostname
 interval_seconds: 300
+trust: {allowed_signers: /etc/lpam/allowed_signers}   # optional: signed commits only
 ```
 
 In the source repository, `vehicles/<id>.yaml` is this vehicle's desired state when it
@@ -53,6 +54,22 @@ class Source(BaseModel):
         return check_ref(value)
 
 
+class Trust(BaseModel):
+    """Only commits signed by a listed SSH key are applied."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    allowed_signers: StrictStr = Field(
+        description="OpenSSH allowed_signers file (absolute path, under --root)")
+
+    @field_validator("allowed_signers")
+    @classmethod
+    def _path(cls, value: str) -> str:
+        if not value.startswith("/") or ".." in value.split("/"):
+            raise ValueError("allowed_signers must be an absolute path without '..'")
+        return value
+
+
 class AgentConfig(BaseModel):
     """How this vehicle follows its desired state."""
 
@@ -65,6 +82,7 @@ class AgentConfig(BaseModel):
         default=None, description="a file holding the id (e.g. /etc/libpanda.d/vin)")
     interval_seconds: float = Field(default=300, ge=10, le=86400,
                                     description="seconds between passes of `lpam agent`")
+    trust: Trust | None = Field(default=None, description="apply only signed commits")
 
     @field_validator("vehicle")
     @classmethod

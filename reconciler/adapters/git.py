@@ -163,6 +163,15 @@ class GitStore:
             return None
         return found[1].decode("ascii")
 
+    def signature(self, key: str, commit: str) -> tuple[bytes | None, bytes]:
+        """The commit's signature (its `gpgsig` header, None when unsigned) and what was
+        signed (the commit object without that header)."""
+        with self._open(key) as repo:
+            found = None if repo is None else _commit(repo, commit)
+            if found is None:
+                raise RefNotFoundError(f"{key}: commit {commit} is not in the repository store")
+            return found.gpgsig, found.raw_without_sig()
+
     def local_refs(self, key: str) -> RemoteRefs | None:
         """What the last fetch saw of origin's branches and tags (peeled), without network:
         the answer `plan --offline` gives instead of an ls-remote. None without a checkout."""

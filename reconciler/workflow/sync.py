@@ -25,7 +25,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.errors import ConfigError, GitError, HealthError, LpamError, StopRequested
+from reconciler.errors import (
+    ConfigError,
+    GitError,
+    HealthError,
+    LpamError,
+    StopRequested,
+    TrustError,
+)
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.machine import Machine
@@ -70,6 +77,12 @@ def sync(machine: Machine, config: AgentConfig, *, report: Report,
         return _record(machine, status, _fetch_pins(machine, config, vehicle, revision, report))
     if offline and revision == status.applied_revision:
         return _record(machine, status, Synced("offline", revision, offline))
+    if config.trust is not None:
+        try:
+            _trusted(machine, config, revision)
+        except TrustError as exc:
+            report(Note(f"revision {revision[:12]} refused: {exc.message}"))
+            return _record(machine, status, Synced("failed", revision, exc.message, exc.hint))
     if status.failed(revision) and revision != status.applied_revision:
         report(Note(f"revision {revision[:12]} failed before; waiting for a new one"))
         return _record(machine, status, Synced("nothing to do", revision,
@@ -87,6 +100,16 @@ def sync(machine: Machine, config: AgentConfig, *, report: Report,
     outcome: Result = "applied" if done.steps else "nothing to do"
     report(Progress(f"{outcome}: revision {revision[:12]} ({done.app})"))
     return _record(machine, status, Synced(outcome, revision))
+
+
+def _trusted(machine: Machine, config: AgentConfig, revision: str) -> str:
+    """The signer of `revision`, which must be listed in the allowed signers."""
+    from reconciler.adapters.signatures import verify
+
+    assert config.trust is not None
+    allowed = machine.layout.root / config.trust.allowed_signers.lstrip("/")
+    signature, payload = machine.store().signature(SOURCE_KEY, revision)
+    return verify(signature, payload, allowed, what=f"commit {revision[:12]}")
 
 
 def _reason(exc: LpamError) -> str:
