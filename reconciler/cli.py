@@ -160,6 +160,14 @@ def _parser() -> argparse.ArgumentParser:
     install.add_argument("--config", type=Path, help="agent.yaml (default: under --root)")
     install.add_argument(*SERVICES, **SERVICES_OPTIONS)
 
+    pin = sub.add_parser("pin", parents=[common],
+                         help="pin every branch or tag of a desired state to its commit now")
+    pin.add_argument("file", nargs="?", type=Path, help="desired state (default: under --root)")
+    pin.add_argument("--catalogs", action="store_true",
+                     help="also report the ROS repositories of the app it names")
+    pin.add_argument("--dry-run", action="store_true", help="say what would change only")
+    pin.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
+
     services = sub.add_parser("services", parents=[common],
                               help="the service manager lpam started (supervisord)")
     services.add_argument("action", choices=("shutdown",),
@@ -505,6 +513,21 @@ def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
     return EXIT_OK
 
 
+def cmd_pin(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.pin import pin
+
+    path = args.file if args.file is not None else layout.desired_state
+    done = pin(_machine(args, layout), path, report=Terminal(), catalogs=args.catalogs,
+               write=not args.dry_run)
+    if not done:
+        print(f"{path}: every repository is already pinned to a full commit.")
+    elif args.dry_run:
+        print(f"{path} was not changed (--dry-run).")
+    else:
+        print(f"Pinned {len(done)} repositories in {path}; review and commit it.")
+    return EXIT_OK
+
+
 def _agent_report(event: Event) -> None:
     """The agent's events as log lines (its output goes to the journal)."""
     from reconciler.workflow.events import Note, Planned, Progress
@@ -574,6 +597,7 @@ COMMANDS = {
     "sync": cmd_sync,
     "agent": cmd_agent,
     "install-agent": cmd_install_agent,
+    "pin": cmd_pin,
     "start": cmd_operate,
     "stop": cmd_operate,
     "restart": cmd_operate,

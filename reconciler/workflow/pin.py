@@ -1,0 +1,108 @@
+"""`lpam pin`: what was tested is what the cars run.
+
+Every repository of a desired-state file that follows a branch or a tag (or the default
+branch) is pinned to the full commit it points at now, the name it followed kept as a
+comment on the line; everything else in the file — comments, key order, quoting, blank
+lines — stays as it was (ruamel.yaml's round trip). With `catalogs`, the ROS repositories
+of the app the file names are reported as they resolve now (they are pinned in the app's
+catalog, which is the app repository's to change, not this file's).
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+from reconciler.errors import ConfigError
+from reconciler.workflow.events import Progress, Report
+from reconciler.workflow.machine import Machine
+from schemas.names import is_hex_commit
+
+
+@dataclass(frozen=True)
+class Pinned:
+    """One repository pinned: its key, what it followed, the commit it is pinned to."""
+
+    key: str
+    was: str
+    commit: str
+
+
+def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
+        write: bool = True) -> list[Pinned]:
+    """Pin `path` in place (unless not `write`); the repositories pinned."""
+    from ruamel.yaml import YAML
+
+    from reconciler.atomic import write_atomic
+    from reconciler.documents import load_desired
+    from reconciler.loading import read_text
+
+    desired = load_desired(path)  # refuse a bad file before anything is asked of a remote
+    store = machine.store()
+    yaml = YAML()
+    yaml.preserve_quotes = True
+    yaml.width = 4096  # never re-wrap a long line
+    text = read_text(path)
+    offset = _sequence_offset(text)
+    yaml.indent(mapping=2, sequence=offset + 2, offset=offset)  # the file's own style
+    data = yaml.load(text)
+    if data.get("version") != 1:
+        raise ConfigError("lpam pin rewrites version 1 desired states only", path=path,
+                          hint="upgrade the file first (lpam validate says how)")
+    items = data.get("repositories") or []
+    done: list[Pinned] = []
+    for spec, item in zip(desired.repositories, items, strict=True):
+        if spec.ref is not None and is_hex_commit(spec.ref) and len(spec.ref) == 40:
+            continue
+        url = desired.mirrored(spec.source(path.resolve().parent))
+        commit = store.ls_remote(url).resolve(spec.ref)
+        if commit is None:
+            raise ConfigError(f"repository {spec.key}: {spec.ref or 'the default branch'} "
+                              f"does not exist in {url}", path=path,
+                              hint="fix `ref:` first; the file was not changed")
+        was = spec.ref or "default branch"
+        had_ref = "ref" in item
+        item["ref"] = commit
+        if not (had_ref and item.ca.items.get("ref")):  # a comment of the author's stays
+            item.yaml_add_eol_comment(f"pinned from {was}", "ref")
+        done.append(Pinned(spec.key, was, commit))
+        report(Progress(f"{spec.key}: {was} → {commit}"))
+    if catalogs:
+        _report_ros(machine, path, report)
+    if write and done:
+        out = io.StringIO()
+        yaml.dump(data, out)
+        write_atomic(path, out.getvalue())
+    return done
+
+
+def _sequence_offset(text: str) -> int:
+    """How far the file indents a list's dash under its key (`  - url:` is 2, `- url:` 0)."""
+    import re
+
+    found = re.search(r"^repositories:[ \t]*(?:#.*)?\n(?:[ \t]*(?:#.*)?\n)*([ \t]*)- ",
+                      text, re.MULTILINE)
+    return len(found.group(1)) if found else 2
+
+
+def _report_ros(machine: Machine, path: Path, report: Report) -> None:
+    """The ROS repositories of the app the file names, as they resolve now."""
+    from reconciler.documents import load_desired
+    from reconciler.execution.lock import apply_lock
+    from reconciler.legacy.appdir import libpanda_user
+    from reconciler.observe.targets import Fetch, resolve
+
+    desired = load_desired(path)
+    with apply_lock(machine.layout, timeout=60.0):  # a fetch into the store is a write
+        targets = resolve(desired, base_dir=path.resolve().parent, store=machine.store(),
+                          fetch=Fetch.OBJECTS, default_user=libpanda_user(machine.layout),
+                          root=machine.layout.root)
+    if targets.app is None or not targets.app.deps.ros:
+        report(Progress("the app names no ROS repositories"))
+        return
+    for source in targets.app.deps.ros:
+        follows = source.repo.ref or "default branch"
+        pinned = "pinned" if source.repo.ref is not None and is_hex_commit(source.repo.ref) \
+            else "follows a branch: pin it in the app's catalog"
+        report(Progress(f"ros {source.name}: {follows} → {source.commit} ({pinned})"))
