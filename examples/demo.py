@@ -67,6 +67,34 @@ def build_wheels() -> str:
     return wheel.name
 
 
+FLEET = DEMO / "fleet.git"
+
+
+def build_fleet(desired: str) -> Path:
+    """The lab's desired-state repository: `desired-state.yaml` for every car, its app
+    repository named relative to it (`../example-apps.git`, as git resolves submodules)."""
+    shutil.rmtree(FLEET, ignore_errors=True)
+    porcelain.init(str(FLEET), bare=True)
+    Repo(str(FLEET)).refs.set_symbolic_ref(b"HEAD", b"refs/heads/main")  # what clones get
+    commit_to_fleet(desired.replace(f"url: {REPO.name}", "url: ../example-apps.git"),
+                    "the lab's first desired state")
+    return FLEET
+
+
+def commit_to_fleet(desired: str, message: str) -> None:
+    """Commit `desired` as desired-state.yaml on the fleet repository's main branch."""
+    work = DEMO / "fleet-work"
+    shutil.rmtree(work, ignore_errors=True)
+    with open(os.devnull, "wb") as quiet:
+        repo = porcelain.clone(str(FLEET), str(work), errstream=quiet)
+    (work / "desired-state.yaml").write_text(desired)
+    porcelain.add(repo, paths=[str(work / "desired-state.yaml")])
+    porcelain.commit(repo, message=message.encode(), author=IDENTITY, committer=IDENTITY)
+    with open(os.devnull, "wb") as quiet:
+        porcelain.push(repo, str(FLEET), b"HEAD:refs/heads/main", errstream=quiet)
+    shutil.rmtree(work)
+
+
 def lpam(*args: str, check: bool = True) -> int:
     shown = " ".join(["lpam", *args]).replace(str(TOP) + "/", "")
     print(f"\n$ {shown}", flush=True)
@@ -144,7 +172,20 @@ def main() -> int:
         raise SystemExit(f"demo failed: the broken release should exit 3, not {code}")
     lpam("status", "--json")
     lpam("history")
-    print("\n== 9. Stop supervisord (and the app it runs)")
+    print("\n== 9. Follow a desired-state repository, as a car does: the lab commits the")
+    print("   desired state, the car's agent applies it (one pass: `lpam sync`)")
+    fleet = build_fleet(switched_desired_state("speed-monitor", {"SPEED_UNIT": "mph"},
+                                               "fleet").read_text())
+    agent = ROOT / "etc" / "lpam" / "agent.yaml"
+    agent.write_text(f"version: 1\nsource: {{url: '{fleet}', branch: main}}\n"
+                     "vehicle: demo-car\n")
+    lpam("sync")
+    lpam("status")
+    print("\n   A broken commit is refused, the app keeps running, and it is not retried:")
+    commit_to_fleet("version: 1\napp: {name: speed-monitor, parmas: {}}\n", "typo")
+    lpam("sync", check=False)
+    lpam("sync")
+    print("\n== 10. Stop supervisord (and the app it runs)")
     lpam("services", "shutdown")
     print("\nDemo complete. The sandbox root is .demo/root; rerun to start afresh.")
     return 0

@@ -10,6 +10,10 @@ own file wins over the fleet's; what a fetch-only pass brought is applied with n
 from __future__ import annotations
 
 import json
+import os
+import signal
+import time
+from collections.abc import Callable
 from typing import Any
 
 from tests.gitserver import GitDaemon, RepoBuilder
@@ -113,3 +117,24 @@ def test_a_pass_heals_drift_from_the_applied_revision_and_status_shows_the_agent
     table = car("status").stdout
     assert f"Agent (rav4-07): applied {agent['applied_revision'][:12]}" in table
     assert "last pass: failed" in table and "unknown key 'aap'" in table
+
+
+def test_a_sync_killed_mid_install_is_finished_by_the_next_pass(
+    car: Lpam, fleet: RepoBuilder, make_repo: Callable[[str], RepoBuilder],
+) -> None:
+    from tests.integration.apps import apps_repo
+
+    apps_repo(make_repo("slow.git"), alpha={"install": "sleep 3"})
+    fleet.commit("slow alpha", {"desired-state.yaml": fleet_state("alpha", MODE="one")
+                                .replace("../apps.git", "../slow.git")})
+    fleet.push()
+    proc = car.spawn("sync")
+    deadline = time.monotonic() + 60
+    while "alpha:install:one" not in car.events() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)  # lpam dies; its install.sh runs on under its guard
+    proc.communicate(timeout=30)
+    done = car("sync", "--lock-timeout", "30")  # waits for the orphaned install.sh
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert car.events() == ["alpha:install:one", "alpha:start:one"]  # nothing ran twice
+    assert status(car)["applied_revision"] == fleet.rev("HEAD")
