@@ -137,6 +137,8 @@ def _parser() -> argparse.ArgumentParser:
     sync.add_argument("--config", type=Path, help="agent.yaml (default: under --root)")
     sync.add_argument("--fetch-only", action="store_true",
                       help="fetch the source and what it pins, record, change nothing")
+    sync.add_argument("--bundle", type=Path, metavar="FILE",
+                      help="take the source and what it pins from a bundle: no network")
     sync.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
     sync.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
     sync.add_argument(*SERVICES, **SERVICES_OPTIONS)
@@ -159,6 +161,14 @@ def _parser() -> argparse.ArgumentParser:
                              help="install the systemd units that run the agent on this car")
     install.add_argument("--config", type=Path, help="agent.yaml (default: under --root)")
     install.add_argument(*SERVICES, **SERVICES_OPTIONS)
+
+    bundle = sub.add_parser("bundle", parents=[common],
+                            help="offline bundles of the desired state and what it pins")
+    bundle.add_argument("action", choices=("create",))
+    bundle.add_argument("out", type=Path, help="the bundle file to write")
+    bundle.add_argument("--source", help="desired-state repository (default: agent.yaml's)")
+    bundle.add_argument("--branch", help="its branch (default: agent.yaml's, else main)")
+    bundle.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
 
     pin = sub.add_parser("pin", parents=[common],
                          help="pin every branch or tag of a desired state to its commit now")
@@ -471,7 +481,7 @@ def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
     options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
                            keep_generations=args.keep_generations)
     done = sync(_machine(args, layout), config, report=Terminal(), options=options,
-                fetch_only=args.fetch_only)
+                fetch_only=args.fetch_only, bundle=args.bundle)
     revision = done.revision[:12] if done.revision else "none"
     print(f"Sync: {done.result} (revision {revision})"
           + (f": {done.reason}" if done.reason else ""),
@@ -510,6 +520,33 @@ def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
         print(f"Wrote {path}")
     print(f"The agent follows {config.source.url} ({config.source.branch}) every "
           f"{config.interval_seconds:g} s, and fetches at shutdown.")
+    return EXIT_OK
+
+
+def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
+    """Made under a temporary root of its own: a laptop needs no lpam installation."""
+    import tempfile
+
+    from reconciler.workflow.bundle import create
+
+    url, branch = args.source, args.branch
+    if url is None or branch is None:
+        from reconciler.documents import load_agent
+
+        if url is None and not layout.agent_config.exists():
+            raise LpamError("which desired-state repository?",
+                            hint="pass --source URL (or run where agent.yaml names it)")
+        if layout.agent_config.exists():
+            config = load_agent(layout.agent_config)
+            url = url or config.source.url
+            branch = branch or config.source.branch
+    with tempfile.TemporaryDirectory(prefix="lpam-bundle-root-") as tmp:
+        from reconciler.workflow.machine import Machine
+
+        machine = Machine.at(Layout(Path(tmp)), network_timeout=args.network_timeout)
+        count = create(machine, url, branch or "main", args.out, report=Terminal())
+    print(f"Wrote {args.out}: the desired state and {count} repositories it pins; on the "
+          f"car: `lpam sync --bundle {args.out.name}`.")
     return EXIT_OK
 
 
@@ -598,6 +635,7 @@ COMMANDS = {
     "agent": cmd_agent,
     "install-agent": cmd_install_agent,
     "pin": cmd_pin,
+    "bundle": cmd_bundle,
     "start": cmd_operate,
     "stop": cmd_operate,
     "restart": cmd_operate,

@@ -94,6 +94,10 @@ def load_agent(path: Path) -> AgentConfig:
     """The agent's configuration (`etc/lpam/agent.yaml`), version-checked and validated."""
     from migrations import upgrade
 
+    if not path.exists():
+        raise ConfigError("file not found", path=path,
+                          hint="write it (README: A fleet that follows git), or pass "
+                          "--config FILE")
     doc = load(path)
     data = upgrade("agent-config", doc.data, path=doc.path, position=doc.position)
     config: AgentConfig = _validate(doc, data, AgentConfig, "agent configuration")

@@ -163,6 +163,17 @@ class GitStore:
             return None
         return found[1].decode("ascii")
 
+    def folder_files(self, key: str, commit: str, folder: str) -> list[str]:
+        """The names of the regular files directly in `commit:folder` ([] without it)."""
+        with self._open(key) as repo:
+            found = None if repo is None else _lookup(repo, commit, folder)
+            if repo is None or found is None or not stat.S_ISDIR(found[0]):
+                return []
+            tree = repo.object_store[found[1]]
+            assert isinstance(tree, Tree)
+            return sorted(entry.path.decode("utf-8", "replace") for entry in tree.items()
+                          if entry.mode is not None and stat.S_ISREG(entry.mode))
+
     def signature(self, key: str, commit: str) -> tuple[bytes | None, bytes]:
         """The commit's signature (its `gpgsig` header, None when unsigned) and what was
         signed (the commit object without that header)."""
@@ -224,6 +235,39 @@ class GitStore:
             raise
         fsync_dir(dest.parent)
         self._sweep(key)
+
+    def adopt(self, key: str, url: str, source: Repo, commits: list[str],
+              branches: dict[str, str]) -> None:
+        """Bring `commits` (and what they reach) from the repository `source` (an unpacked
+        bundle) into `key` as if fetched from `url`: a missing checkout is created with
+        `url` as its origin, and `branches` (full ref name → commit, such as
+        refs/remotes/origin/main or refs/tags/v1) are set as a fetch would leave them. A
+        checkout with another origin gets the objects only."""
+        dest = self._checkout_dir(key)
+        self._sweep(key)
+        if not dest.exists():
+            fresh = self._temp(key, "clone")
+            try:
+                with Repo.init(str(fresh)) as repo:
+                    config = repo.get_config()
+                    config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
+                    config.set((b"remote", b"origin"), b"fetch",
+                               b"+refs/heads/*:refs/remotes/origin/*")
+                    config.write_to_path()
+                os.rename(fresh, dest)
+            except BaseException:
+                shutil.rmtree(fresh, ignore_errors=True)
+                raise
+            fsync_dir(dest.parent)
+        wanted = {ObjectID(c.encode("ascii")) for c in commits}
+        with Repo(str(dest)) as repo:
+            missing = {c for c in wanted if c not in repo.object_store}
+            if missing:
+                count, records = source.generate_pack_data(have=set(), want=missing)
+                repo.object_store.add_pack_data(count, records)
+            if self.origin_url(key) == url:
+                for name, commit in branches.items():
+                    repo.refs[Ref(name.encode())] = ObjectID(commit.encode("ascii"))
 
     def fetch_objects(self, key: str, url: str) -> None:
         """Bring `url`'s commits into the key's object database for a plan to read, moving

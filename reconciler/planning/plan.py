@@ -63,7 +63,7 @@ def fingerprint(plan: Plan) -> str:
 _REQUIRED_ARGS = ("commit", "generation", "tree", "path", "repository", "build", "ros")
 
 
-def _unknown_values(plan: Plan) -> list[str]:
+def unknown_values(plan: Plan) -> list[str]:
     """`step.arg` for every value a plan must know to run but does not."""
     return [
         f"{step.id}.{name}"
@@ -80,7 +80,7 @@ def check_plan(plan: Plan, *, lineage: str | None, serial: int, source: str) -> 
             f"{source}: the plan's fingerprint does not match its steps (edited or corrupt)",
             hint="make a new plan with `lpam plan --out FILE`",
         )
-    unknown = _unknown_values(plan)
+    unknown = unknown_values(plan)
     if plan.offline or unknown:
         raise PlanError(
             f"{source}: the plan was made offline or holds values still unknown "

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from reconciler.errors import LpamError
 from reconciler.workflow.events import Planned, Progress, Report
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.planning import prepare
@@ -43,17 +44,25 @@ class Applied:
 
 
 def apply(machine: Machine, path: Path, desired: DesiredState, *, options: ApplyOptions,
-          confirm: Callable[[Plan], bool], report: Report) -> Applied:
+          confirm: Callable[[Plan], bool], report: Report, local: bool = False) -> Applied:
     """`lpam apply [-f FILE]`: the plan is reported (`Planned`) and `confirm`ed before it
-    runs; nothing changes when it is declined."""
+    runs; nothing changes when it is declined. `local`: use no network, resolving refs as
+    the last fetch (or an unpacked bundle) left them; refused if anything is not local."""
     from reconciler.execution.lock import apply_lock
     from reconciler.observe.targets import Fetch
+    from reconciler.planning.plan import unknown_values
 
     with apply_lock(machine.layout, timeout=options.lock_timeout) as lock:
         if options.release:
             _release(machine, report)
-        store, made = prepare(machine, path, desired, fetch=Fetch.CHECKOUT, report=report)
+        fetch = Fetch.OFFLINE if local else Fetch.CHECKOUT
+        store, made = prepare(machine, path, desired, fetch=fetch, report=report)
         report(Planned(made))
+        missing = unknown_values(made) if local else []
+        if missing:
+            raise LpamError(f"with no network, these are not known: {', '.join(missing)}",
+                            hint="fetch them first (`lpam sync --fetch-only` where there is "
+                            "network, or a bundle); nothing was changed")
         if not made.steps:
             return Applied(0, _standing(machine))
         if not confirm(made):

@@ -62,12 +62,20 @@ class Synced:
 
 
 def sync(machine: Machine, config: AgentConfig, *, report: Report,
-         options: ApplyOptions | None = None, fetch_only: bool = False) -> Synced:
-    """One pass; the outcome is recorded in `status.json` whatever it is."""
+         options: ApplyOptions | None = None, fetch_only: bool = False,
+         bundle: Path | None = None) -> Synced:
+    """One pass; the outcome is recorded in `status.json` whatever it is. With `bundle`,
+    the source and what it pins come from that file instead of the network."""
     options = options or ApplyOptions()
     status = read_status(machine)
     vehicle = vehicle_id(machine, config)
-    offline = _fetch(machine, config, report)
+    if bundle is not None:
+        from reconciler.workflow.bundle import unpack
+
+        unpack(machine, bundle, config.source.url, config.source.branch)
+        offline: str | None = f"from the bundle {bundle}"
+    else:
+        offline = _fetch(machine, config, report)
     revision = _tip(machine, config)
     status = status.model_copy(update={"vehicle": vehicle, "desired_revision": revision})
     if revision is None:
@@ -75,7 +83,7 @@ def sync(machine: Machine, config: AgentConfig, *, report: Report,
         return _record(machine, status, Synced("offline" if offline else "failed", None, why))
     if fetch_only:
         return _record(machine, status, _fetch_pins(machine, config, vehicle, revision, report))
-    if offline and revision == status.applied_revision:
+    if offline and bundle is None and revision == status.applied_revision:
         return _record(machine, status, Synced("offline", revision, offline))
     if config.trust is not None:
         try:
@@ -90,7 +98,7 @@ def sync(machine: Machine, config: AgentConfig, *, report: Report,
     try:
         label, desired = _desired(machine, config, vehicle, revision)
         done = apply(machine, label, desired, options=options, confirm=lambda plan: True,
-                     report=report)
+                     report=report, local=offline is not None)
     except StopRequested as exc:  # not a failure: the next pass tries the revision again
         return _record(machine, status, Synced("stopped", revision, exc.message))
     except LpamError as exc:
@@ -175,13 +183,13 @@ def _desired(machine: Machine, config: AgentConfig, vehicle: str,
             repo = config.source.url.rstrip("/").rsplit("/", 1)[-1]  # fleet.git@c92f32f2ab56/…
             label = Path(f"{repo}@{revision[:12]}") / name
             desired = desired_from(load(label, data.decode("utf-8", "replace")))
-            return label, _anchored(desired, config.source.url)
+            return label, anchored(desired, config.source.url)
     raise ConfigError(f"neither {VEHICLE_DIR}/{vehicle}.yaml nor {DEFAULT_FILE} is in the "
                       f"source at {revision[:12]}", path=machine.layout.agent_config,
                       hint=f"commit a desired state for this vehicle ({vehicle}) or for all")
 
 
-def _anchored(desired: DesiredState, source: str) -> DesiredState:
+def anchored(desired: DesiredState, source: str) -> DesiredState:
     repos = []
     for spec in desired.repositories:
         if spec.url is not None and "://" not in spec.url and not spec.url.startswith("/"):
