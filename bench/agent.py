@@ -11,6 +11,10 @@ logs every connection (bench/repos.py). Measured in one run, side by side:
   it: connections, and bytes added (only that repository's new objects should come);
 - for scale, `git fetch` of the desired-state repository alone, run the same way.
 
+Every pass also pushes the car's status to `status/<vehicle>` (one more connection and a
+commit of about a kilobyte); the bytes column counts what the store gained, that commit
+included.
+
     .venv/bin/python -m bench.agent [--reps N]
 
 Progress goes to stderr, a Markdown report to stdout (docs/benchmarks.md keeps one).
@@ -67,7 +71,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         home = tmp / "home"
         home.mkdir()
         served = tmp / "served"
-        with CountingDaemon(served, home=home, log=tmp / "daemon.log") as daemon:
+        # The fleet repository accepts pushes: each pass publishes the car's status.
+        with CountingDaemon(served, home=home, log=tmp / "daemon.log",
+                            receive_pack=True) as daemon:
             log(f"building {COUNT} app repositories and the fleet's …")
             repos = build_repos(daemon, tmp / "work", home, count=COUNT, commits=5)
             fleet = RepoBuilder(served, "fleet.git", work_root=tmp / "work", home=home)

@@ -30,8 +30,8 @@ class CountingDaemon(GitDaemon):
     a tool's run is how many times that tool went to the network.
     """
 
-    def __init__(self, base: Path, *, home: Path, log: Path) -> None:
-        super().__init__(base, home=home, log=log)
+    def __init__(self, base: Path, *, home: Path, log: Path, receive_pack: bool = False) -> None:
+        super().__init__(base, home=home, log=log, receive_pack=receive_pack)
 
     def connections(self) -> int:
         """Connections accepted so far (a tool's count is the difference over its run)."""

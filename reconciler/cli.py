@@ -170,6 +170,14 @@ def _parser() -> argparse.ArgumentParser:
     bundle.add_argument("--branch", help="its branch (default: agent.yaml's, else main)")
     bundle.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
 
+    fleet = sub.add_parser("fleet", parents=[common],
+                           help="the fleet's status, read from a clone of its repository")
+    fleet.add_argument("action", choices=("status",))
+    fleet.add_argument("--repo", type=Path, default=Path("."),
+                       help="a clone of the desired-state repository (default: here)")
+    fleet.add_argument("--branch", default="main", help="the branch the cars follow")
+    fleet.add_argument("--json", action="store_true")
+
     pin = sub.add_parser("pin", parents=[common],
                          help="pin every branch or tag of a desired state to its commit now")
     pin.add_argument("file", nargs="?", type=Path, help="desired state (default: under --root)")
@@ -550,6 +558,15 @@ def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
     return EXIT_OK
 
 
+def cmd_fleet(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow import fleet
+
+    tip, rows = fleet.read(args.repo, args.branch)
+    print(json.dumps(fleet.as_json(tip, rows), indent=2) if args.json
+          else fleet.as_table(tip, rows))
+    return EXIT_OK
+
+
 def cmd_pin(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.pin import pin
 
@@ -636,6 +653,7 @@ COMMANDS = {
     "install-agent": cmd_install_agent,
     "pin": cmd_pin,
     "bundle": cmd_bundle,
+    "fleet": cmd_fleet,
     "start": cmd_operate,
     "stop": cmd_operate,
     "restart": cmd_operate,

@@ -30,8 +30,10 @@ def hermetic_env(
 
 @pytest.fixture
 def git_daemon(tmp_path_factory: pytest.TempPathFactory, hermetic_env: Path) -> Iterator[GitDaemon]:
-    """A real `git daemon` on 127.0.0.1 serving the repositories `make_repo` builds."""
-    with GitDaemon(tmp_path_factory.mktemp("served"), home=hermetic_env) as daemon:
+    """A real `git daemon` on 127.0.0.1 serving the repositories `make_repo` builds; it
+    accepts pushes, as a fleet's repository does for the cars' status branches."""
+    with GitDaemon(tmp_path_factory.mktemp("served"), home=hermetic_env,
+                   receive_pack=True) as daemon:
         yield daemon
 
 

@@ -71,7 +71,9 @@ def _accepts(port: int) -> bool:
 class GitDaemon:
     """`git daemon` serving every repository under `base` on a free loopback port."""
 
-    def __init__(self, base: Path, *, home: Path, log: Path | None = None) -> None:
+    def __init__(self, base: Path, *, home: Path, log: Path | None = None,
+                 receive_pack: bool = False) -> None:
+        self.receive_pack = receive_pack  # accept pushes (the fleet's status branches)
         self.base = base
         self.env = git_env(home)
         self.port = 0
@@ -93,7 +95,9 @@ class GitDaemon:
                     [
                         "git", "daemon", "--reuseaddr", *verbose, f"--base-path={self.base}",
                         "--export-all", "--listen=127.0.0.1", f"--port={self.port}",
-                        "--informative-errors", "--enable=upload-pack", str(self.base),
+                        "--informative-errors", "--enable=upload-pack",
+                        *(["--enable=receive-pack"] if self.receive_pack else []),
+                        str(self.base),
                     ],
                     env=self.env, stdout=subprocess.DEVNULL, stderr=err,
                     start_new_session=True,  # `git daemon` runs git-daemon as a child: kill both

@@ -27,6 +27,7 @@ import os
 import shutil
 import stat
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -207,15 +208,16 @@ class GitStore:
 
     # -- writes -------------------------------------------------------------------------
 
-    def fetch(self, key: str, url: str) -> None:
-        """Bring `key` up to date with `url`, cloning it when absent or when the URL changed."""
+    def fetch(self, key: str, url: str, *, skip: str = "") -> None:
+        """Bring `key` up to date with `url`, cloning it when absent or when the URL changed;
+        refs under `skip` (the fleet's status branches) are not fetched."""
         self._transport.check(url, "fetch")
         dest = self._checkout_dir(key)
         self._sweep(key)
         current = self.origin_url(key) if dest.exists() else None
         if current == url:
             with Repo(str(dest)) as repo:
-                self._transport.fetch_into(repo, url)
+                self._transport.fetch_into(repo, url, skip=skip)
             return
         if dest.exists():
             self._refuse_edits(key, "cannot switch it to " + redact(url))
@@ -226,7 +228,7 @@ class GitStore:
                 config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
                 config.set((b"remote", b"origin"), b"fetch", b"+refs/heads/*:refs/remotes/origin/*")
                 config.write_to_path()
-                self._transport.fetch_into(repo, url)
+                self._transport.fetch_into(repo, url, skip=skip)
             if dest.exists():  # rename(2) may replace the empty directory _temp made
                 os.rename(dest, self._temp(key, "old"))
             os.rename(fresh, dest)
@@ -268,6 +270,34 @@ class GitStore:
             if self.origin_url(key) == url:
                 for name, commit in branches.items():
                     repo.refs[Ref(name.encode())] = ObjectID(commit.encode("ascii"))
+
+    def push_file(self, key: str, url: str, branch: str, name: str, content: bytes,
+                  message: str) -> str:
+        """Commit `content` as the only file `name` of `branch` (on top of the branch as the
+        last fetch saw it on origin) and push it to `url`; the new commit. Nothing in the
+        checkout moves: the commit is made from objects alone."""
+        from dulwich.objects import Commit
+
+        with self._open(key) as repo:
+            if repo is None:
+                raise GitError(f"{key} is not in the repository store")
+            blob = Blob.from_string(content)
+            tree = Tree()
+            tree.add(name.encode("utf-8"), 0o100644, blob.id)
+            commit = Commit()
+            commit.tree = tree.id
+            parent = repo.refs.as_dict(Ref(b"refs/remotes/origin")).get(Ref(branch.encode()))
+            commit.parents = [parent] if parent is not None and parent in repo.object_store \
+                else []
+            commit.author = commit.committer = b"lpam <lpam@localhost>"
+            commit.commit_time = commit.author_time = int(time.time())
+            commit.commit_timezone = commit.author_timezone = 0
+            commit.message = message.encode("utf-8")
+            for obj in (blob, tree, commit):
+                repo.object_store.add_object(obj)
+            self._transport.push(repo, url, f"refs/heads/{branch}", commit.id.decode("ascii"))
+            repo.refs[Ref(f"refs/remotes/origin/{branch}".encode())] = commit.id
+            return commit.id.decode("ascii")
 
     def fetch_objects(self, key: str, url: str) -> None:
         """Bring `url`'s commits into the key's object database for a plan to read, moving

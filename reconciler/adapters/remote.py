@@ -89,8 +89,9 @@ class Transport:
             default = next((b for b in ("main", "master") if _HEADS + b in refs), None)
         return RemoteRefs(url=url, refs=refs, default_branch=default)
 
-    def fetch_into(self, repo: Repo, url: str, *, mirror: bool = True) -> None:
-        """Fetch every branch and tag, then mirror them as origin's refs and local tags.
+    def fetch_into(self, repo: Repo, url: str, *, mirror: bool = True, skip: str = "") -> None:
+        """Fetch every branch and tag (but those under `skip`), then mirror them as origin's
+        refs and local tags.
 
         The refs are written only after the pack is safely stored, so a failed fetch
         changes nothing; `porcelain.fetch(repo, URL)` would not write them at all. With
@@ -98,7 +99,8 @@ class Transport:
         and the fetched tips are kept under `refs/lpam/fetched/` so no cleanup drops them.
         """
         self.check(url, "fetch")
-        answer = self._ask({"op": "fetch", "url": url, "repo": repo.path}, url, "fetch")
+        answer = self._ask({"op": "fetch", "url": url, "repo": repo.path, "skip": skip}, url,
+                           "fetch")
         refs: dict[str, str] = answer["refs"]
         fetched = {name.encode("utf-8"): sha.encode("ascii") for name, sha in refs.items()}
         missing = [sha for sha in fetched.values() if ObjectID(sha) not in repo.object_store]
@@ -108,12 +110,23 @@ class Transport:
                 hint=_NETWORK_HINT,
             )
         heads, tags = _under(fetched, b"refs/heads/"), _under(fetched, b"refs/tags/")
+        if skip.startswith("refs/heads/"):  # what lpam keeps of them itself stays
+            kept = skip.removeprefix("refs/heads/").encode("utf-8")
+            heads.update({Ref(name): sha for name, sha in
+                          repo.refs.as_dict(Ref(b"refs/remotes/origin")).items()
+                          if name.startswith(kept)})
         if not mirror:
             repo.refs.import_refs(Ref(b"refs/lpam/fetched/heads"), heads, prune=True)
             repo.refs.import_refs(Ref(b"refs/lpam/fetched/tags"), tags, prune=True)
             return
         repo.refs.import_refs(Ref(b"refs/remotes/origin"), heads, prune=True)
         repo.refs.import_refs(Ref(b"refs/tags"), tags)
+
+    def push(self, repo: Repo, url: str, ref: str, new: str) -> None:
+        """Set the remote's `ref` to the commit `new` of `repo`, sending what it lacks."""
+        self.check(url, "push to")
+        self._ask({"op": "push", "url": url, "repo": repo.path, "ref": ref, "new": new},
+                  url, "push to")
 
     def _ask(self, request: dict[str, str], url: str, action: str) -> dict[str, Any]:
         """Run one operation in a child process; its answer, or a one-line GitError."""

@@ -25,7 +25,8 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Set as AbstractSet
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
@@ -39,6 +40,7 @@ if TYPE_CHECKING:
     from multiprocessing.connection import Connection
 
     from dulwich.client import GitClient
+    from dulwich.pack import UnpackedObject
 
 _WANTED = (b"refs/heads/", b"refs/tags/")
 _PEELED = b"^{}"
@@ -73,19 +75,46 @@ def ls_remote(url: str) -> dict[str, Any]:
     return {"refs": refs, "head": head.decode("utf-8", "replace") if head else None}
 
 
-def fetch(url: str, repo_path: str) -> dict[str, Any]:
-    """Fetch the objects of every branch and tag into `repo_path`; refs stay untouched."""
+def fetch(url: str, repo_path: str, skip: str = "") -> dict[str, Any]:
+    """Fetch the objects of every branch and tag into `repo_path` (but those under `skip`,
+    such as the fleet's status branches); refs stay untouched."""
     client, path = client_for(url)
+    skipped = skip.encode("utf-8")
+
+    def kept(name: bytes) -> bool:
+        return _is_tip(name) and not (skipped and name.startswith(skipped))
+
     with Repo(repo_path) as repo:
 
         def wanted(refs: Mapping[Ref, ObjectID | None], depth: int | None = None) -> list[ObjectID]:
-            tips = [sha for name, sha in refs.items() if _is_tip(name) and sha is not None]
+            tips = [sha for name, sha in refs.items() if kept(name) and sha is not None]
             return [sha for sha in dict.fromkeys(tips) if sha not in repo.object_store]
 
         result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)
     refs = {name: sha for name, sha in _text_refs(result.refs).items()
-            if not name.endswith(_PEELED.decode())}
+            if not name.endswith(_PEELED.decode()) and not (skip and name.startswith(skip))}
     return {"refs": refs}
+
+
+def push(url: str, repo_path: str, ref: str, new: str) -> dict[str, Any]:
+    """Set `ref` on the remote to `new` (a commit of `repo_path`), sending what it lacks."""
+    client, path = client_for(url)
+    with Repo(repo_path) as repo:
+
+        def update(refs: dict[Ref, ObjectID]) -> dict[Ref, ObjectID]:
+            return {**refs, Ref(ref.encode("utf-8")): ObjectID(new.encode("ascii"))}
+
+        def pack(have: AbstractSet[ObjectID], want: AbstractSet[ObjectID], *,
+                 ofs_delta: bool = False, progress: Callable[[bytes], None] | None = None,
+                 ) -> tuple[int, Iterator[UnpackedObject]]:
+            return repo.generate_pack_data(set(have), set(want), ofs_delta=ofs_delta)
+
+        result = client.send_pack(path.encode("utf-8"), update, generate_pack_data=pack)
+    refused = {name.decode("utf-8", "replace"): why for name, why in
+               (result.ref_status or {}).items() if why is not None}
+    if refused:
+        return {"error": "; ".join(f"{name}: {why}" for name, why in refused.items())}
+    return {"pushed": ref}
 
 
 def _is_tip(name: bytes) -> bool:
@@ -154,7 +183,9 @@ def answer(request: dict[str, str]) -> dict[str, Any]:
     try:
         if request["op"] == "ls-remote":
             return ls_remote(request["url"])
-        return fetch(request["url"], request["repo"])
+        if request["op"] == "push":
+            return push(request["url"], request["repo"], request["ref"], request["new"])
+        return fetch(request["url"], request["repo"], request.get("skip", ""))
     except _transport_errors() as exc:
         return {"error": reason(exc)}
     except Exception as exc:  # a hostile server's garbage, or a bug: one line

@@ -19,6 +19,7 @@ laptop that serves both).
 
 from __future__ import annotations
 
+import json
 import posixpath
 import socket
 from dataclasses import dataclass
@@ -64,8 +65,20 @@ class Synced:
 def sync(machine: Machine, config: AgentConfig, *, report: Report,
          options: ApplyOptions | None = None, fetch_only: bool = False,
          bundle: Path | None = None) -> Synced:
-    """One pass; the outcome is recorded in `status.json` whatever it is. With `bundle`,
-    the source and what it pins come from that file instead of the network."""
+    """One pass; the outcome is recorded in `status.json` whatever it is, and published
+    as the branch `status/<vehicle>` of the source when the source accepts pushes. With
+    `bundle`, the source and what it pins come from that file instead of the network."""
+    online: list[bool] = []
+    done = _pass(machine, config, report=report, options=options, fetch_only=fetch_only,
+                 bundle=bundle, online=online)
+    if online:
+        publish(machine, config, report)
+    return done
+
+
+def _pass(machine: Machine, config: AgentConfig, *, report: Report,
+          options: ApplyOptions | None, fetch_only: bool, bundle: Path | None,
+          online: list[bool]) -> Synced:
     options = options or ApplyOptions()
     status = read_status(machine)
     vehicle = vehicle_id(machine, config)
@@ -76,6 +89,8 @@ def sync(machine: Machine, config: AgentConfig, *, report: Report,
         offline: str | None = f"from the bundle {bundle}"
     else:
         offline = _fetch(machine, config, report)
+        if offline is None:
+            online.append(True)
     revision = _tip(machine, config)
     status = status.model_copy(update={"vehicle": vehicle, "desired_revision": revision})
     if revision is None:
@@ -125,6 +140,32 @@ def _reason(exc: LpamError) -> str:
     return f"{exc.where}: {exc.message}" if isinstance(exc, ConfigError) else exc.message
 
 
+STATUS_PREFIX = "status/"
+STATUS_FILE = "status.json"
+
+
+def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
+    """Push this vehicle's status to `status/<vehicle>` of the source, so that `lpam fleet
+    status` in any clone shows the whole fleet from git alone. A source that refuses pushes
+    (a read-only mirror, a GitHub token without write access) costs a note, nothing more."""
+    from reconciler import status as machine_status
+
+    own = read_status(machine)
+    if own.vehicle is None:
+        return
+    app = machine_status.as_json(machine.layout, state=machine.services.state)["app"]
+    body = {"agent": own.model_dump(mode="json"),
+            "app": None if app is None else {k: app[k] for k in
+                                             ("name", "generation", "status", "running")}}
+    text = json.dumps(body, indent=2, sort_keys=True) + "\n"
+    try:
+        machine.store().push_file(SOURCE_KEY, config.source.url, STATUS_PREFIX + own.vehicle,
+                                  STATUS_FILE, text.encode("utf-8"),
+                                  f"status of {own.vehicle}")
+    except LpamError as exc:
+        report(Note(f"status not published: {exc.message}"))
+
+
 def vehicle_id(machine: Machine, config: AgentConfig) -> str:
     """`vehicle:`, else the content of `vehicle_file:` (under --root), else the hostname."""
     if config.vehicle is not None:
@@ -154,7 +195,9 @@ def _fetch(machine: Machine, config: AgentConfig, report: Report) -> str | None:
 
     try:
         with apply_lock(machine.layout, timeout=60.0):
-            machine.store().fetch(SOURCE_KEY, config.source.url)
+            # the other cars' status branches are not this car's business
+            machine.store().fetch(SOURCE_KEY, config.source.url,
+                                  skip="refs/heads/" + STATUS_PREFIX)
     except GitError as exc:
         report(Note(f"offline: {exc.message}"))
         return exc.message

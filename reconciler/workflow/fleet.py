@@ -1,0 +1,107 @@
+"""`lpam fleet status`: the whole fleet from git alone.
+
+Each car's passes push its status to the branch `status/<vehicle>` of the desired-state
+repository (workflow/sync.py `publish`). In any clone of that repository, after a fetch,
+this reads those branches and says per vehicle which revision it applied against the
+branch the cars follow, its app, whether it runs, how its last pass ended, and when it was
+last seen — no server, no database, nothing but refs and one small file per car.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from reconciler.errors import ConfigError
+
+PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    vehicle: str
+    applied: str | None
+    up_to_date: bool | None  # applied == the followed branch's tip (None: unknown)
+    app: str | None
+    running: bool | None
+    last_pass: str | None
+    reason: str | None
+    last_seen: str
+
+
+def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
+    """(the followed branch's tip, one row per vehicle with a status branch)."""
+    from dulwich.errors import NotGitRepository
+    from dulwich.objects import Commit, Tree
+    from dulwich.refs import Ref
+    from dulwich.repo import Repo
+
+    try:
+        repo = Repo(str(repo_path))
+    except NotGitRepository:
+        raise ConfigError("not a clone of the desired-state repository", path=repo_path,
+                          hint="run it in a clone (git clone …; git fetch) or pass --repo") \
+            from None
+    with repo:
+        refs = repo.get_refs()
+        tip_id = refs.get(Ref(f"refs/remotes/origin/{branch}".encode())) or \
+            refs.get(Ref(f"refs/heads/{branch}".encode()))
+        tip = tip_id.decode("ascii") if tip_id else None
+        seen: dict[str, Vehicle] = {}
+        for name, sha in sorted(refs.items()):
+            prefix = next((p for p in PREFIXES if name.startswith(p)), None)
+            if prefix is None or sha is None:
+                continue
+            vehicle = name[len(prefix):].decode("utf-8", "replace")
+            commit = repo[sha]
+            if not isinstance(commit, Commit) or vehicle in seen:
+                continue
+            tree = repo[commit.tree]
+            assert isinstance(tree, Tree)
+            try:
+                _, blob_id = tree[b"status.json"]
+                body: dict[str, Any] = json.loads(repo[blob_id].as_raw_string())
+            except (KeyError, ValueError):
+                continue
+            seen[vehicle] = _row(vehicle, body, tip, commit.commit_time)
+    return tip, list(seen.values())
+
+
+def _row(vehicle: str, body: dict[str, Any], tip: str | None, when: int) -> Vehicle:
+    agent = body.get("agent") or {}
+    app = body.get("app") or {}
+    last = agent.get("last_attempt") or {}
+    applied = agent.get("applied_revision")
+    return Vehicle(
+        vehicle=vehicle, applied=applied,
+        up_to_date=None if tip is None or applied is None else applied == tip,
+        app=app.get("name"), running=app.get("running"), last_pass=last.get("result"),
+        reason=last.get("reason"),
+        last_seen=datetime.fromtimestamp(when, UTC).isoformat(timespec="seconds"))
+
+
+def as_json(tip: str | None, rows: list[Vehicle]) -> dict[str, Any]:
+    return {"tip": tip, "vehicles": [asdict(row) for row in rows]}
+
+
+def as_table(tip: str | None, rows: list[Vehicle]) -> str:
+    if not rows:
+        return ("No vehicle has published its status yet (no status/* branches: fetch, or "
+                "check that the cars may push to this repository).")
+    header = ("Vehicle", "Applied", "Current", "App", "Running", "Last pass", "Last seen")
+    cells: list[tuple[str, ...]] = [(r.vehicle, (r.applied or "none")[:12],
+              {True: "yes", False: "no", None: "?"}[r.up_to_date], r.app or "-",
+              {True: "yes", False: "no", None: "?"}[r.running],
+              (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""), r.last_seen)
+             for r in rows]
+    cells = [tuple("".join(c if c.isprintable() else "?" for c in v)[:60] for v in row)
+             for row in cells]
+    widths = [max(len(h), *(len(row[i]) for row in cells)) for i, h in enumerate(header)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)).rstrip()]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)).rstrip()
+              for row in cells]
+    lines.append(f"\nThe cars follow {(tip or 'an unknown revision')[:12]}.")
+    return "\n".join(lines)
