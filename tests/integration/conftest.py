@@ -36,13 +36,18 @@ def fleet(make_repo: Callable[[str], RepoBuilder], apps: str) -> RepoBuilder:
     return repo
 
 
-@pytest.fixture
-def car(tmp_path: Path, git_daemon: GitDaemon) -> Lpam:
-    lpam = Lpam(tmp_path / "root")
+def following(root: Path, url: str, vehicle: str) -> Lpam:
+    """A car under `root` whose agent.yaml follows `url` as `vehicle`."""
+    lpam = Lpam(root)
     config = lpam.root / "etc/lpam/agent.yaml"
     config.parent.mkdir(parents=True)
-    config.write_text(f"version: 1\nsource: {{url: {git_daemon.url('fleet.git')}, "
-                      "branch: main}\nvehicle: rav4-07\n")
+    config.write_text(f"version: 1\nsource: {{url: {url}, branch: main}}\n"
+                      f"vehicle: {vehicle}\n")
     return lpam
+
+
+@pytest.fixture
+def car(tmp_path: Path, git_daemon: GitDaemon) -> Lpam:
+    return following(tmp_path / "root", git_daemon.url("fleet.git"), "rav4-07")
 
 

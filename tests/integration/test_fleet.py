@@ -11,16 +11,11 @@ from pathlib import Path
 
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam
-from tests.integration.conftest import fleet_state
+from tests.integration.conftest import fleet_state, following
 
 
 def second_car(tmp_path: Path, git_daemon: GitDaemon) -> Lpam:
-    car = Lpam(tmp_path / "car-01")
-    config = car.root / "etc/lpam/agent.yaml"
-    config.parent.mkdir(parents=True)
-    config.write_text(f"version: 1\nsource: {{url: {git_daemon.url('fleet.git')}}}\n"
-                      "vehicle: rav4-01\n")
-    return car
+    return following(tmp_path / "car-01", git_daemon.url("fleet.git"), "rav4-01")
 
 
 def test_fleet_status_shows_every_car_from_a_clone(
