@@ -10,9 +10,6 @@ from __future__ import annotations
 
 import re
 
-from packaging.requirements import InvalidRequirement, Requirement
-from packaging.utils import canonicalize_name
-
 # Debian Policy 5.6.1: lower case letters, digits, '+', '-', '.'; at least two characters,
 # starting with a letter or digit. An architecture qualifier (`:arm64`) is allowed.
 _DEBIAN = re.compile(r"^[a-z0-9][a-z0-9+.-]{1,99}(:[a-z0-9][a-z0-9-]{0,31})?$")
@@ -33,6 +30,10 @@ def check_debian_package(value: str) -> str:
 def check_requirement(value: str) -> str:
     """A pip requirement specifier: a name, optional extras and version specifiers
     (`cantools`, `shapely>=2,<3`, `requests[socks]==2.31`). No URL, path, marker or option."""
+    # packaging is imported here, not at the top: every document load imports this module,
+    # and a plan without pip requirements should not pay for it.
+    from packaging.requirements import InvalidRequirement, Requirement
+
     problem = None
     if not _REQUIREMENT_CHARS.match(value):
         problem = "it may hold only a name, [extras] and version specifiers"
@@ -55,4 +56,7 @@ def check_requirement(value: str) -> str:
 def requirement_name(value: str) -> str:
     """The distribution a requirement names, normalised as pip compares them
     (`Shapely` and `shapely` are one distribution; `python_can` is `python-can`)."""
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
     return str(canonicalize_name(Requirement(value).name))

@@ -60,11 +60,13 @@ def dependency_ports(layout: Layout, env: Mapping[str, str] = os.environ) -> Dep
 
 @dataclass
 class Machine:
-    """The installation under `layout`, with the ports use cases act through."""
+    """The installation under `layout`, with the ports use cases act through. The ports of
+    dependencies are made when first asked for: a plan of repositories alone, the most
+    frequent command, does not import apt's, pip's and catkin's adapters."""
 
     layout: Layout
     services: Services
-    deps: DependencyPorts
+    given_deps: DependencyPorts | None = None
     network_timeout: float = 60.0
     clock: Callable[[], datetime] = field(default=now)
     stop_requested: Callable[[], bool] = field(default=lambda: False)  # the agent's SIGTERM
@@ -72,8 +74,13 @@ class Machine:
     @classmethod
     def at(cls, layout: Layout, *, services: str | None = None,
            network_timeout: float = 60.0) -> Machine:
-        return cls(layout, services_for(layout, services), dependency_ports(layout),
-                   network_timeout=network_timeout)
+        return cls(layout, services_for(layout, services), network_timeout=network_timeout)
+
+    @property
+    def deps(self) -> DependencyPorts:
+        if self.given_deps is None:
+            self.given_deps = dependency_ports(self.layout)
+        return self.given_deps
 
     def store(self) -> GitStore:
         from reconciler.adapters.git import GitStore

@@ -73,7 +73,9 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
                       default_user=libpanda_user(layout), root=layout.root)
     report(Phase("resolve"))
-    observed = observe(layout, store, targets, machine.services, machine.deps)
+    needs = targets.app is not None and bool(targets.app.deps.how)  # apt, pip or ROS
+    observed = observe(layout, store, targets, machine.services,
+                       machine.deps if needs else None)
     report(Phase("observe"))
     if busy is not None:
         report(Note(f"an apply is in progress ({busy}); this plan shows the machine as it "
