@@ -21,6 +21,7 @@ import json
 import uuid
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from reconciler.atomic import write_atomic
 from reconciler.errors import ConfigError
@@ -28,6 +29,9 @@ from reconciler.generations import installed_on_disk
 from reconciler.layout import Layout
 from reconciler.reading import MIB, read_bounded
 from schemas.record import AppRecord, StateRecord, Stray
+
+if TYPE_CHECKING:
+    from schemas.agent import AgentStatus
 
 LIMIT = 4 * MIB
 
@@ -40,6 +44,19 @@ DAMAGED_HINT = (
 ExitCode = Callable[[str], int | None]
 
 SETTLED = {"installing": "installed", "starting": "running", "stopping": "installed"}
+
+
+def read_agent_status(layout: Layout) -> AgentStatus | None:
+    """What the agent's passes recorded (`status.json`); None where no agent ever ran."""
+    from reconciler.documents import parse_json
+    from reconciler.loading import read_text
+    from schemas.agent import AgentStatus
+
+    path = layout.agent_status
+    if not path.exists():
+        return None
+    return parse_json("agent-status", read_text(path), path, AgentStatus,
+                      hint="move the file aside; the next pass writes a new one")
 
 
 def read_record(layout: Layout) -> StateRecord:

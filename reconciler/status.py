@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from reconciler.documents import parse_catalog
 from reconciler.errors import ConfigError, GitError
 from reconciler.layout import Layout
-from reconciler.state import read_record
+from reconciler.state import read_agent_status, read_record
 from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
 
 if TYPE_CHECKING:
@@ -216,18 +216,11 @@ def _agent(layout: Layout) -> dict[str, Any] | None:
     A damaged file is reported, not raised: status must always answer."""
     from reconciler.errors import LpamError
 
-    if not layout.agent_status.exists():
-        return None
     try:
-        from reconciler.documents import parse_json
-        from reconciler.loading import read_text
-        from schemas.agent import AgentStatus
-
-        found = parse_json("agent-status", read_text(layout.agent_status), layout.agent_status,
-                           AgentStatus, hint="move the file aside")
+        found = read_agent_status(layout)
     except LpamError as exc:
         return {"error": exc.message}
-    return found.model_dump(mode="json")
+    return None if found is None else found.model_dump(mode="json")
 
 
 def _cell(value: object) -> str:

@@ -42,7 +42,10 @@ from reconciler.errors import DETAIL_LINES, DependencyError
 from reconciler.execution.ports import Log
 
 MARKER = ".lpam-built"
-BUILD_SCRIPT = 'source "$1" && shift && exec "$@"'  # $1: the underlay; rest: the command
+SOURCE_THEN_EXEC = 'source "$1" || exit 1; shift; exec "$@"'
+"""Runs a command inside a ROS environment (a setup.bash), from an argument list: the setup
+file and the command are the shell's arguments, never part of its code. Builds use it with
+the underlay, and launch units (execution/supervision.py) with their build's devel space."""
 _KEY = re.compile(r"[0-9a-f]{8,64}")
 _USER = re.compile(r"[a-z_][a-z0-9_-]*\$?")
 _CONTEXT = 2  # lines shown before the first error line: the compiler's "In function …"
@@ -183,7 +186,7 @@ class CatkinWorkspace:
                 "-DCATKIN_ENABLE_TESTING=OFF"]
         if self.underlay is None:
             return argv
-        return ["bash", "-c", BUILD_SCRIPT, "lpam-build", str(self.underlay), *argv]
+        return ["bash", "-c", SOURCE_THEN_EXEC, "lpam-build", str(self.underlay), *argv]
 
     def _as_user(self) -> list[str]:
         """The prefix that runs a command as the ROS user; DependencyError when lpam can

@@ -31,10 +31,6 @@ class Outcome:
     code: int | None
     tail: list[str] = field(default_factory=list)
 
-    @property
-    def ok(self) -> bool:
-        return self.code == 0
-
 
 def run_streamed(
     argv: list[str], *, log: Log, deadline: float, env: Mapping[str, str] | None = None,

@@ -13,7 +13,7 @@ import getpass
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from reconciler.adapters.catkin import find_underlay
+from reconciler.adapters.catkin import SOURCE_THEN_EXEC, find_underlay
 from reconciler.adapters.scripts import DEFAULT_PATH
 from reconciler.errors import HealthError, StepError
 from reconciler.execution.context import Context
@@ -56,9 +56,7 @@ def runtime(ctx: Context, gen: Generation) -> Runtime:
     return Runtime(env, setup)
 
 
-ROS_WRAPPER = 'source "$1" || exit 1; shift; exec "$@"'
-"""Runs a program inside a ROS build's environment (its devel/setup.bash), from an argument
-list: the setup file and the program are arguments of the shell, never part of its code."""
+ROS_WRAPPER = SOURCE_THEN_EXEC  # a launch app's roslaunch, inside its build's devel space
 
 
 def unit_for(ctx: Context, app: AppRecord, place: Path, run: Runtime | None = None) -> Unit:

@@ -24,7 +24,7 @@ from typing import Any
 from reconciler.errors import ConfigError, LpamError
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
-from reconciler.workflow.sync import DEFAULT_FILE, SOURCE_KEY, VEHICLE_DIR, anchored
+from reconciler.workflow.sync import DEFAULT_FILE, SOURCE_KEY, VEHICLE_DIR, desired_at
 from schemas.names import is_hex_commit
 
 MANIFEST = b"refs/lpam/manifest"
@@ -93,8 +93,6 @@ def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report
 
 def _pinned(machine: Machine, url: str, tip: str, report: Report) -> list[Entry]:
     """Every repository (app and ROS) that a desired state of the source at `tip` pins."""
-    from reconciler.documents import desired_from
-    from reconciler.loading import load
     from reconciler.observe.targets import Fetch, resolve
 
     store = machine.store()
@@ -103,11 +101,10 @@ def _pinned(machine: Machine, url: str, tip: str, report: Report) -> list[Entry]
                               if n.endswith(".yaml")]
     found: dict[tuple[str, str], Entry] = {}
     for name in names:
-        data = store.read_file(SOURCE_KEY, tip, name)
-        if data is None:
+        document = desired_at(machine, url, tip, name)
+        if document is None:
             continue
-        label = Path(f"{url.rstrip('/').rsplit('/', 1)[-1]}@{tip[:12]}") / name
-        desired = anchored(desired_from(load(label, data.decode("utf-8", "replace"))), url)
+        label, desired = document
         targets = resolve(desired, base_dir=Path("/"), store=store, fetch=Fetch.OBJECTS,
                           root=machine.layout.root)
         repos = list(targets.repositories)

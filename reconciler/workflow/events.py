@@ -51,6 +51,3 @@ class Phase:
 Event = Note | Progress | Output | Planned | Phase
 Report = Callable[[Event], None]
 
-
-def ignore(event: Event) -> None:
-    """A `Report` for callers that want only the result."""

@@ -216,20 +216,27 @@ def _tip(machine: Machine, config: AgentConfig) -> str | None:
 def _desired(machine: Machine, config: AgentConfig, vehicle: str,
              revision: str) -> tuple[Path, DesiredState]:
     """This vehicle's desired state at `revision`, relative URLs made absolute."""
-    from reconciler.documents import desired_from
-    from reconciler.loading import load
-
-    store = machine.store()
     for name in (f"{VEHICLE_DIR}/{vehicle}.yaml", DEFAULT_FILE):
-        data = store.read_file(SOURCE_KEY, revision, name)
-        if data is not None:
-            repo = config.source.url.rstrip("/").rsplit("/", 1)[-1]  # fleet.git@c92f32f2ab56/…
-            label = Path(f"{repo}@{revision[:12]}") / name
-            desired = desired_from(load(label, data.decode("utf-8", "replace")))
-            return label, anchored(desired, config.source.url)
+        found = desired_at(machine, config.source.url, revision, name)
+        if found is not None:
+            return found
     raise ConfigError(f"neither {VEHICLE_DIR}/{vehicle}.yaml nor {DEFAULT_FILE} is in the "
                       f"source at {revision[:12]}", path=machine.layout.agent_config,
                       hint=f"commit a desired state for this vehicle ({vehicle}) or for all")
+
+
+def desired_at(machine: Machine, url: str, revision: str,
+               name: str) -> tuple[Path, DesiredState] | None:
+    """The desired state in the file `name` of the source at `revision` (None without it),
+    relative URLs made absolute; faults are located as `fleet.git@c92f32f2ab56/<name>`."""
+    from reconciler.documents import desired_from
+    from reconciler.loading import load
+
+    data = machine.store().read_file(SOURCE_KEY, revision, name)
+    if data is None:
+        return None
+    label = Path(f"{url.rstrip('/').rsplit('/', 1)[-1]}@{revision[:12]}") / name
+    return label, anchored(desired_from(load(label, data.decode("utf-8", "replace"))), url)
 
 
 def anchored(desired: DesiredState, source: str) -> DesiredState:
@@ -268,14 +275,9 @@ def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: s
 
 
 def read_status(machine: Machine) -> AgentStatus:
-    from reconciler.documents import parse_json
-    from reconciler.loading import read_text
+    from reconciler.state import read_agent_status
 
-    path = machine.layout.agent_status
-    if not path.exists():
-        return AgentStatus()
-    return parse_json("agent-status", read_text(path), path, AgentStatus,
-                      hint="move the file aside; the next pass writes a new one")
+    return read_agent_status(machine.layout) or AgentStatus()
 
 
 def _record(machine: Machine, status: AgentStatus, outcome: Synced) -> Synced:
