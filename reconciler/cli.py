@@ -367,8 +367,10 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
                            options=options, report=Terminal())
     else:
         path = _desired_path(args, layout)
+        machine = _machine(args, layout)
+        machine.warm_network()
         desired = load_desired(path)
-        done = apply(_machine(args, layout), path, desired, options=options,
+        done = apply(machine, path, desired, options=options,
                      confirm=lambda plan: _confirm(args), report=Terminal())
     if done.cancelled:
         print("Apply cancelled; nothing was changed.")

@@ -56,6 +56,22 @@ def _forkserver() -> ForkServerContext:
         return _context
 
 
+def warm() -> None:
+    """Start the forkserver now, in the background, for a caller that will soon need the
+    network: its ~0.1 s of start-up (a fresh interpreter importing dulwich's client) then
+    overlaps lpam's own imports instead of delaying the first fetch. Harmless if unused:
+    the forkserver exits with lpam."""
+
+    def start() -> None:
+        from multiprocessing import forkserver
+
+        _forkserver()
+        with contextlib.suppress(OSError):  # the first fetch then starts it, or reports why
+            forkserver.ensure_running()
+
+    threading.Thread(target=start, name="lpam-forkserver", daemon=True).start()
+
+
 def run(request: dict[str, str], *, timeout: float) -> dict[str, Any] | None:
     """The child's answer to `request` (None if it died without one); `Expired` when it has
     not answered within `timeout` seconds."""

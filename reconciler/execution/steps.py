@@ -50,11 +50,22 @@ def _params(step: Step) -> dict[str, str]:
 
 
 def checkout(step: Step, ctx: Context) -> None:
+    check_out(step, ctx)
+    record_checkout(step, ctx)
+
+
+def check_out(step: Step, ctx: Context) -> None:
+    """The checkout's work on its own repository, which touches nothing another
+    repository's checkout does: the executor runs several at once (record_checkout after)."""
     key, url, commit = _arg(step, "key"), _arg(step, "url"), _arg(step, "commit")
     if ctx.store.origin_url(key) != url or not ctx.store.has_commit(key, commit):
         ctx.store.fetch(key, url)
     if ctx.store.head(key) != commit:
         ctx.store.checkout(key, commit)
+
+
+def record_checkout(step: Step, ctx: Context) -> None:
+    key, url, commit = _arg(step, "key"), _arg(step, "url"), _arg(step, "commit")
     ref = step.args.get("ref")
     entry = RepositoryRecord(key=key, url=url, ref=ref if isinstance(ref, str) else None,
                              commit=commit)

@@ -90,6 +90,13 @@ def _taken_over(layout: Layout, record: StateRecord,
     return found
 
 
+def asks_manager(record: StateRecord) -> bool:
+    """Whether observing needs the service manager: only an installed app or an app lpam
+    took over has a unit to ask about, so a plan of repositories alone need not load one."""
+    return record.app is not None or any(
+        s.folder is not None and not s.stopped for s in record.strays)
+
+
 def live_state(unit: str | None, services: Services | None) -> UnitState | None:
     """The app's unit now; None when it names none or no manager is asked."""
     if unit is None or services is None:

@@ -115,7 +115,6 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: GitStore,
                  fetch: Fetch) -> RepoTarget:
     """The commit `ref` names in the repository at `url` (stored as `key`): a hash stays,
     a branch or tag follows its tip, none follows the default branch."""
-    same_origin = store.origin_url(key) == url
     commit: str | None = None
     if ref is not None and is_hex_commit(ref):
         # A commit hash names the same content whichever remote brought it.
@@ -131,7 +130,7 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: GitStore,
         elif commit is None and len(ref) == 40:
             commit = ref
     elif fetch is Fetch.OFFLINE:
-        local = store.local_refs(key) if same_origin else None
+        local = store.local_refs(key) if store.origin_url(key) == url else None
         commit = local.resolve(ref) if local is not None else None
         return RepoTarget(key=key, url=url, ref=ref, commit=commit, as_of_last_fetch=True)
     else:
@@ -148,6 +147,7 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: GitStore,
                 f"tags: {', '.join(tags) or 'none'})",
                 hint="fix `ref:` in the desired state; nothing on the machine was changed",
             )
+        same_origin = store.origin_url(key) == url
         if fetch is Fetch.CHECKOUT and not (same_origin and store.has_commit(key, commit)):
             store.fetch(key, url)
         elif fetch is Fetch.OBJECTS and not store.has_commit(key, commit):

@@ -51,13 +51,17 @@ def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> li
 def order(steps: Iterable[Step]) -> list[Step]:
     """Topologically sort the steps under the phase and cutover rules; stable for equal ranks."""
     steps = list(steps)
-    if not steps:
-        return []  # a no-op plan: no need to load networkx at all
-    import networkx as nx
-
     index = {s.id: i for i, s in enumerate(steps)}
     if len(index) != len(steps):
         raise PlanError("two steps of the plan have the same id; this is a bug in lpam")
+    if not any(s.needs for s in steps):
+        # Without `needs`, the rules' graph is the phases' total order plus the cutover chain
+        # in plan order, and its lexicographic topological order is exactly this sort
+        # (tests/unit/test_graph.py checks it against the graph). It spares a plan of
+        # repositories networkx's import, 85 ms of a cold apply's start.
+        return sorted(steps, key=lambda s: (_PHASE_ORDER[s.phase], index[s.id]))
+    import networkx as nx
+
     graph = nx.DiGraph()
     graph.add_nodes_from(index)
     for a in steps:

@@ -36,7 +36,11 @@ def services_for(layout: Layout, override: str | None,
     """The service manager: `override`, else $LPAM_SERVICES, else systemd where it runs."""
     from reconciler.adapters.services.choice import choose
 
-    if choose(override=override, env=env) == "systemd":
+    return services_named(layout, choose(override=override, env=env))
+
+
+def services_named(layout: Layout, name: str) -> Services:
+    if name == "systemd":
         from reconciler.adapters.services.systemd import SystemdServices
 
         return SystemdServices(layout)
@@ -60,12 +64,14 @@ def dependency_ports(layout: Layout, env: Mapping[str, str] = os.environ) -> Dep
 
 @dataclass
 class Machine:
-    """The installation under `layout`, with the ports use cases act through. The ports of
-    dependencies are made when first asked for: a plan of repositories alone, the most
-    frequent command, does not import apt's, pip's and catkin's adapters."""
+    """The installation under `layout`, with the ports use cases act through. Ports are made
+    when first asked for: a plan of repositories alone, the most frequent command, imports
+    neither a service manager's client (supervisord's costs 70 ms) nor apt's, pip's and
+    catkin's adapters."""
 
     layout: Layout
-    services: Services
+    given_services: Services | None = None
+    services_name: str = "supervisor"  # which manager `services` makes when first asked
     given_deps: DependencyPorts | None = None
     network_timeout: float = 60.0
     clock: Callable[[], datetime] = field(default=now)
@@ -74,13 +80,30 @@ class Machine:
     @classmethod
     def at(cls, layout: Layout, *, services: str | None = None,
            network_timeout: float = 60.0) -> Machine:
-        return cls(layout, services_for(layout, services), network_timeout=network_timeout)
+        from reconciler.adapters.services.choice import choose
+
+        # chosen (and a bad --services refused) now; the client is made when first used
+        return cls(layout, services_name=choose(override=services, env=os.environ),
+                   network_timeout=network_timeout)
+
+    @property
+    def services(self) -> Services:
+        if self.given_services is None:
+            self.given_services = services_named(self.layout, self.services_name)
+        return self.given_services
 
     @property
     def deps(self) -> DependencyPorts:
         if self.given_deps is None:
             self.given_deps = dependency_ports(self.layout)
         return self.given_deps
+
+    def warm_network(self) -> None:
+        """Get the network helper going while the caller still reads its documents: an
+        apply or a sync fetches unless every pin is already here (adapters.deadline)."""
+        from reconciler.adapters import deadline
+
+        deadline.warm()
 
     def store(self) -> GitStore:
         from reconciler.adapters.git import GitStore

@@ -59,7 +59,7 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     """Resolve the desired state, observe the machine and plan; `path` anchors relative
     URLs. `busy` is what holds the lock when the caller planned beside a running apply."""
     from reconciler.legacy.appdir import libpanda_user
-    from reconciler.observe.machine import observe
+    from reconciler.observe.machine import asks_manager, observe
     from reconciler.observe.targets import Fetch, resolve
     from reconciler.planning.plan import make_plan
     from reconciler.state import read_record
@@ -74,7 +74,8 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
                       default_user=libpanda_user(layout), root=layout.root)
     report(Phase("resolve"))
     needs = targets.app is not None and bool(targets.app.deps.how)  # apt, pip or ROS
-    observed = observe(layout, store, targets, machine.services,
+    observed = observe(layout, store, targets,
+                       machine.services if asks_manager(record) else None,
                        machine.deps if needs else None)
     report(Phase("observe"))
     if busy is not None:

@@ -305,3 +305,40 @@ def test_deleted_app_folder_is_restored_from_git(
     assert lpam.events()[2:] == ["alpha:stop:", "alpha:uninstall:", "alpha:install:",
                                  "alpha:start:"]
     assert lpam("plan", "--detailed-exitcode").returncode == 0
+
+
+def test_one_failed_checkout_of_many_stops_the_apply_and_keeps_the_others(
+    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon,
+    make_repo: Callable[[str], RepoBuilder],
+) -> None:
+    """Several repositories are checked out at once: the one with local edits fails the
+    apply by name, its edit is kept, the others are checked out and recorded, the app runs
+    on untouched; once the edit is gone, the next apply finishes the job."""
+    extras = [make_repo(f"lib{i}.git") for i in range(3)]
+    for i, extra in enumerate(extras):
+        extra.commit("first", {"lib.txt": f"{i}\n"})
+        extra.push()
+    urls = [git_daemon.url(f"lib{i}.git") for i in range(3)]
+    text = desired(git_daemon.url("apps.git"), "alpha").replace(
+        "app:", "".join(f"  - url: {u}\n    ref: main\n" for u in urls) + "app:")
+    lpam.desired(text)
+    assert lpam("apply", "--yes").returncode == 0
+    edited = lpam.root / "var/lib/lpam/repositories/lib1/lib.txt"
+    edited.write_text("my field fix\n")
+    for extra in extras:
+        extra.commit("second", {"lib.txt": "moved\n"})
+        extra.push()
+    done = lpam("apply", "--yes")
+    assert done.returncode == 1
+    assert "checkout:lib1" in done.stderr and "lib.txt" in done.stderr, done.stderr
+    assert edited.read_text() == "my field fix\n"
+    commits = {r["key"]: r["commit"] for r in lpam.status()["repositories"]}
+    assert commits["lib0"] == extras[0].rev("main") and commits["lib2"] == extras[2].rev("main")
+    assert commits["lib1"] != extras[1].rev("main")
+    assert (lpam.root / "var/lib/lpam/repositories/lib2/lib.txt").read_text() == "moved\n"
+    assert lpam.status()["app"]["running"] is True
+    assert lpam.events() == ["alpha:install:", "alpha:start:"]
+    edited.write_text("1\n")  # the edit undone: the checkout is clean again
+    assert lpam("apply", "--yes").returncode == 0
+    assert {r["key"]: r["commit"] for r in lpam.status()["repositories"]}["lib1"] == \
+        extras[1].rev("main")

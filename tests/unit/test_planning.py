@@ -6,6 +6,8 @@ from datetime import UTC, datetime
 
 import networkx as nx
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from reconciler.errors import PlanError, StalePlanError
 from reconciler.planning.diff import diff
@@ -142,6 +144,20 @@ def test_prepare_steps_precede_cutover_whatever_the_input_order() -> None:
         Step(id="checkout:r2", kind=StepKind.CHECKOUT, phase=Phase.PREPARE, args={}),
     ]
     assert [s.id for s in order(steps)] == ["checkout:r2", "start:x", "remove:r"]
+
+
+@given(st.lists(st.sampled_from(list(Phase)), max_size=12))
+def test_steps_without_needs_are_ordered_as_the_graph_orders_them(phases: list[Phase]) -> None:
+    """`order` skips networkx when no step has `needs`; it must put them where the graph of
+    the rules (taken once a step has needs) would. The extra last cleanup step needs the
+    first one, which the rules imply anyway, so it only forces the graph."""
+    steps = [Step(id=f"s{i}", kind=StepKind.START, phase=p, args={})
+             for i, p in enumerate(phases)]
+    forcing = Step(id="last", kind=StepKind.REMOVE, phase=Phase.CLEANUP, args={},
+                   needs=[steps[0].id] if steps else [])
+    by_graph = [s.id for s in order([*steps, forcing])]
+    assert by_graph[-1] == "last"
+    assert [s.id for s in order(steps)] == by_graph[:-1]
 
 
 def test_cycle_is_an_error_naming_it() -> None:
