@@ -147,3 +147,17 @@ class HealthError(StepError):
     """The started app did not stay healthy; the apply rolls back to the previous app."""
 
     exit_code = 3
+
+
+class VehicleSourceError(LpamError):
+    """The vehicle's signal source (a CAN bus, a recording followed as it grows, a log)
+    cannot be opened or read: a missing file, an unknown python-can interface, a bus that
+    does not answer. At a gate this counts as "no signal", never as a traceback."""
+
+
+class Deferred(LpamError):
+    """A gate was closed when the cutover was due (the vehicle moving, a lock held, outside
+    a window). Not a failure: everything was prepared, the running app is untouched, and the
+    next pass tries again. 75 is EX_TEMPFAIL of sysexits(3)."""
+
+    exit_code = 75

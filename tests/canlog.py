@@ -1,0 +1,189 @@
+"""The real drive for the CAN tests, and writers that make recordings of it as the car does.
+
+`recording()` is a 13-minute drive of a RAV4 Hybrid (`shared/data/`, beside the repository
+here and in CI; tests are skipped, saying why, where it is absent). `write_csv` and
+`write_candump` put frames into the two text formats lpam follows; `CsvWriter` and
+`CandumpWriter` append them in a background thread at the recording's pace, so a test can
+follow a file that grows as libpanda's or `candump -l`'s does — optionally in blocks that
+split lines anywhere, as libpanda's stdio buffer does. Writers stop when their `with`
+block ends, waiting a fraction of a second at most.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import re
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import Self
+
+import can
+import pytest
+
+from reconciler.adapters.can.csvlog import HEADER
+
+RECORDING = "rav4-hybrid-2021-08-13.candump.log"
+SPEED_ID = 0xB4
+TICK = 0.1
+
+
+def recording_path() -> Path | None:
+    """Where the drive is: `../shared/data/` from the repository root (or LPAM_CAN_DRIVE)."""
+    named = os.environ.get("LPAM_CAN_DRIVE")
+    root = Path(__file__).resolve().parent.parent
+    for candidate in ([Path(named)] if named else []) + [root.parent / "shared/data" / RECORDING]:
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+@functools.cache
+def _load(path: Path) -> tuple[can.Message, ...]:
+    return tuple(can.CanutilsLogReader(path))
+
+
+def recording() -> list[can.Message]:
+    """The ~56,000 frames of the drive, read once a process; skips the test without it."""
+    path = recording_path()
+    if path is None:
+        pytest.skip(f"the recorded drive {RECORDING} is not in ../shared/data/ beside the "
+                    "repository (or at $LPAM_CAN_DRIVE)")
+    return list(_load(path))
+
+
+def speed_kmh(msg: can.Message) -> float | None:
+    """The speed in a SPEED (0xB4) frame: bytes 5-6 big-endian, 0.01 km/h."""
+    if msg.arbitration_id != SPEED_ID or len(msg.data) < 7:
+        return None
+    return int.from_bytes(msg.data[5:7], "big") * 0.01
+
+
+def between(frames: Sequence[can.Message], start: float, end: float) -> list[can.Message]:
+    """The frames from `start` to `end` seconds into `frames` (the drive's first frame: 0)."""
+    first = frames[0].timestamp
+    return [m for m in frames if start <= m.timestamp - first < end]
+
+
+def shifted(msg: can.Message, shift: float) -> can.Message:
+    """`msg` stamped `shift` seconds later, to the microsecond, as the text formats keep it."""
+    return can.Message(
+        timestamp=float(f"{msg.timestamp + shift:.6f}"), arbitration_id=msg.arbitration_id,
+        is_extended_id=msg.is_extended_id, channel=msg.channel, dlc=msg.dlc,
+        data=msg.data, is_fd=msg.is_fd)
+
+
+def bus_number(channel: object) -> int:
+    """candump's `can0` is libpanda's bus 0."""
+    if isinstance(channel, int):
+        return channel
+    match = re.search(r"(\d+)$", str(channel or ""))
+    return int(match.group(1)) if match else 0
+
+
+def csv_row(msg: can.Message, shift: float = 0.0) -> str:
+    """A libpanda CSV row (as `Can::writeCsvToFile` prints it), with its newline."""
+    stamp = f"{msg.timestamp + shift:.6f}"
+    return (f"{stamp},{bus_number(msg.channel)},{msg.arbitration_id},"
+            f"{bytes(msg.data).hex()},{len(msg.data)}\n")
+
+
+def candump_line(msg: can.Message, shift: float = 0.0) -> str:
+    """A `candump -l` line, with its newline."""
+    ident = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
+    channel = msg.channel if isinstance(msg.channel, str) else f"can{msg.channel or 0}"
+    return f"({msg.timestamp + shift:.6f}) {channel} {ident}#{bytes(msg.data).hex().upper()}\n"
+
+
+def write_csv(path: Path, frames: Sequence[can.Message], *, shift: float = 0.0,
+              header: bool = True) -> None:
+    """A libpanda CSV of `frames`, stamped `shift` seconds later than recorded."""
+    text = (HEADER + "\n" if header else "") + "".join(csv_row(m, shift) for m in frames)
+    path.write_text(text)
+
+
+def write_candump(path: Path, frames: Sequence[can.Message], *, shift: float = 0.0) -> None:
+    path.write_text("".join(candump_line(m, shift) for m in frames))
+
+
+class ProgressiveWriter:
+    """Appends `frames` to `path` in a thread, each when its time has come: the recording's
+    pace times `speed`, starting at once. Each frame is stamped `shift` seconds later than
+    recorded (None: so that the first is stamped now, as a live recording would). With
+    `block`, text is written and flushed `block` bytes at a time, cutting lines anywhere."""
+
+    def __init__(self, path: Path, frames: Sequence[can.Message], *,
+                 line: Callable[[can.Message, float], str], shift: float | None = None,
+                 speed: float = 1.0, block: int | None = None) -> None:
+        self.path = path
+        self.frames = list(frames)
+        self.line = line
+        if shift is None:
+            shift = time.time() - self.frames[0].timestamp if self.frames else 0.0
+        self.shift = shift
+        self.speed = speed
+        self.block = block
+        self.written = 0  # frames whose whole line is in the file
+        self.done = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> Self:
+        self._thread.start()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2)
+
+    def _run(self) -> None:
+        if not self.frames:
+            self.done.set()
+            return
+        began, first = time.monotonic(), self.frames[0].timestamp
+        pending = ""
+        with self.path.open("a") as out:
+            for msg in self.frames:
+                due = began + (msg.timestamp - first) / self.speed
+                while (left := due - time.monotonic()) > 0:
+                    if self._stop.wait(min(left, TICK)):
+                        return
+                if self._stop.is_set():
+                    return
+                pending += self.line(msg, self.shift)
+                size = len(pending) if self.block is None else \
+                    len(pending) - len(pending) % self.block
+                out.write(pending[:size])
+                out.flush()
+                self.written += pending[:size].count("\n")
+                pending = pending[size:]
+            out.write(pending)
+            self.written += pending.count("\n")
+        self.done.set()
+
+
+class CsvWriter(ProgressiveWriter):
+    """libpanda writing its CSV during a drive."""
+
+    def __init__(self, path: Path, frames: Sequence[can.Message], *,
+                 shift: float | None = None, speed: float = 1.0,
+                 block: int | None = None) -> None:
+        super().__init__(path, frames, line=csv_row, shift=shift, speed=speed, block=block)
+
+
+class CandumpWriter(ProgressiveWriter):
+    """`candump -l` writing its log during a drive."""
+
+    def __init__(self, path: Path, frames: Sequence[can.Message], *,
+                 shift: float | None = None, speed: float = 1.0,
+                 block: int | None = None) -> None:
+        super().__init__(path, frames, line=candump_line, shift=shift, speed=speed,
+                         block=block)
