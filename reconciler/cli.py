@@ -26,9 +26,10 @@ from reconciler.errors import ConfigError, LpamError
 from reconciler.layout import Layout
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
-    from reconciler.execution.ports import Services
+    from reconciler.execution.ports import Gate, Services
     from reconciler.workflow.events import Event
     from reconciler.workflow.machine import Machine
+    from schemas.desired import DesiredState
     from schemas.plan import Plan
 
 EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
@@ -58,6 +59,16 @@ def services_for(layout: Layout, override: str | None) -> Services:
     from reconciler.workflow.machine import services_for as choose
 
     return choose(layout, override)
+
+
+WAIT = ("--wait",)
+WAIT_OPTIONS: dict[str, Any] = {
+    "type": float, "default": 0.0, "metavar": "SECONDS",
+    "help": "wait up to SECONDS for closed update gates to open before the cutover; still "
+            "closed: exit 75, deferred (default 0)"}
+FORCE = ("--force",)
+FORCE_OPTIONS: dict[str, Any] = {
+    "action": "store_true", "help": "ignore the update gates (the vehicle may be moving)"}
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -98,6 +109,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="good generations kept on disk for `lpam rollback` (default 3)")
     apply.add_argument("--release", action="store_true",
                        help="end a rollback's hold and apply the desired state again")
+    apply.add_argument(*WAIT, **WAIT_OPTIONS)
 
     status = sub.add_parser("status", parents=[common], help="show repositories and apps")
     status.add_argument("--json", action="store_true")
@@ -108,6 +120,10 @@ def _parser() -> argparse.ArgumentParser:
                           "start` or a change of the desired state"),
                          ("restart", "stop and start the installed app")):
         op = sub.add_parser(action, parents=[common], help=what)
+        op.add_argument("-f", "--file", type=Path,
+                        help="desired state whose update gates apply (default: under --root)")
+        op.add_argument(*WAIT, **WAIT_OPTIONS)
+        op.add_argument(*FORCE, **FORCE_OPTIONS)
         op.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
         op.add_argument(*SERVICES, **SERVICES_OPTIONS)
         op.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
@@ -127,6 +143,8 @@ def _parser() -> argparse.ArgumentParser:
     rollback.add_argument("-f", "--file", type=Path,
                           help="desired state the rollback holds against (default: under --root)")
     rollback.add_argument("--yes", action="store_true", help="roll back without asking")
+    rollback.add_argument(*WAIT, **WAIT_OPTIONS)
+    rollback.add_argument(*FORCE, **FORCE_OPTIONS)
     rollback.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
     rollback.add_argument(*SERVICES, **SERVICES_OPTIONS)
     rollback.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
@@ -146,6 +164,9 @@ def _parser() -> argparse.ArgumentParser:
                       help="kill an app script running longer than this (default 600)")
     sync.add_argument("--keep-generations", type=_at_least_one, default=3, metavar="N",
                       help="good generations kept on disk for `lpam rollback` (default 3)")
+    sync.add_argument("--wait", type=float, default=None, metavar="SECONDS",
+                      help="wait up to SECONDS for closed update gates (default: agent.yaml's "
+                      "gate_wait_seconds)")
 
     agent = sub.add_parser("agent", parents=[common],
                            help="follow the desired-state repository: sync passes forever")
@@ -156,6 +177,11 @@ def _parser() -> argparse.ArgumentParser:
     agent.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
                        help="kill an app script running longer than this (default 600)")
     agent.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
+
+    gates = sub.add_parser("gates", parents=[common],
+                           help="the update gates now: speed, locks, time window")
+    gates.add_argument("-f", "--file", type=Path, help="desired state (default: under --root)")
+    gates.add_argument("--json", action="store_true")
 
     install = sub.add_parser("install-agent", parents=[common],
                              help="install the systemd units that run the agent on this car")
@@ -358,13 +384,19 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
     if args.planfile is not None and args.file is not None:
         raise LpamError("give either a plan file or -f FILE, not both")
     options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
-                           keep_generations=args.keep_generations, release=args.release)
+                           keep_generations=args.keep_generations, release=args.release,
+                           wait=args.wait)
     # Bad input is rejected before the lock is taken, so it never waits on another apply.
     if args.planfile is not None:
         saved = load_plan(args.planfile)
+        machine = _machine(args, layout)
+        desired = _desired_if_any(args, layout)
+        base = _desired_path(args, layout).resolve().parent
         print()
-        done = apply_saved(_machine(args, layout), saved, str(args.planfile),
-                           options=options, report=Terminal())
+        done = apply_saved(machine, saved, str(args.planfile), options=options,
+                           report=Terminal(),
+                           gate=machine.gate_for(desired, base) if desired else None,
+                           listener=machine.listener_for(desired, base) if desired else None)
     else:
         path = _desired_path(args, layout)
         machine = _machine(args, layout)
@@ -396,11 +428,66 @@ def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.operate import operate
 
     machine = _machine(args, layout)
+    gate = _gate(args, layout, machine)
     with apply_lock(layout, timeout=args.lock_timeout) as lock:
         ctx, _ = machine.context(machine.store(), lock, command=args.command,
-                                 script_timeout=args.script_timeout, report=Terminal())
+                                 script_timeout=args.script_timeout, report=Terminal(),
+                                 gate=gate, gate_wait=args.wait)
         print(operate(ctx, args.command, progress=print))
     return EXIT_OK
+
+
+def _gate(args: argparse.Namespace, layout: Layout, machine: Machine) -> Gate | None:
+    """The update gates of the desired state (`-f FILE` or the default): what operator
+    commands obey, unless `--force`."""
+    if getattr(args, "force", False):
+        return None
+    desired = _desired_if_any(args, layout)
+    path = _desired_path(args, layout)
+    return machine.gate_for(desired, path.resolve().parent) if desired else None
+
+
+def _desired_if_any(args: argparse.Namespace, layout: Layout) -> DesiredState | None:
+    """The desired state (`-f FILE` or the default) when there is one, for its gates and
+    vehicle source; one that cannot be read leaves the gates unknown, which is refused
+    rather than guessed."""
+    from reconciler.documents import load_desired
+
+    path = _desired_path(args, layout)
+    if not path.exists():
+        return None
+    try:
+        return load_desired(path)
+    except LpamError as exc:
+        raise LpamError(f"cannot read the update gates: {exc.message}",
+                        hint="fix the desired state, or pass --force to ignore the gates "
+                        "(the vehicle may be moving)") from None
+
+
+def cmd_gates(args: argparse.Namespace, layout: Layout) -> int:
+    """Each update gate now. Exit 0 when all are open, 75 when a cutover would be deferred."""
+    from reconciler.documents import load_desired
+    from reconciler.errors import Deferred
+
+    path = _desired_path(args, layout)
+    desired = load_desired(path)
+    gate = _machine(args, layout).gate_for(desired, path.resolve().parent)
+    states = list(gate.states()) if gate is not None else []
+    is_open = all(s.open for s in states)
+    if args.json:
+        print(json.dumps({"desired_state": str(path), "gated": gate is not None,
+                          "open": is_open, "gates": [
+                              {"name": s.name, "open": s.open, "detail": s.detail}
+                              for s in states]}, indent=2))
+    elif gate is None:
+        print(f"No update gates: {path} has no `gates:`; a cutover may happen at any moment.")
+    else:
+        print(f"Update gates of {path}:")
+        for s in states:
+            print(f"  {s.name:<8} {'open' if s.open else 'CLOSED':<7} {s.detail}")
+        print("A cutover may happen now." if is_open else
+              "A cutover now would be deferred (exit 75).")
+    return EXIT_OK if is_open else Deferred.exit_code
 
 
 def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
@@ -463,9 +550,11 @@ def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
     path = _desired_path(args, layout)
     desired = load_desired(path) if path.exists() else None
     machine = _machine(args, layout)
+    gate = _gate(args, layout, machine)
     with apply_lock(layout, timeout=args.lock_timeout) as lock:
         ctx, _ = machine.context(machine.store(), lock, command=args.command,
-                                 script_timeout=args.script_timeout, report=Terminal())
+                                 script_timeout=args.script_timeout, report=Terminal(),
+                                 gate=gate, gate_wait=args.wait)
         entry = previous_good(ctx)
         print(f"Roll back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}, "
               f"applied {entry.time})?")
@@ -488,8 +577,9 @@ def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.sync import sync
 
     config = load_agent(args.config if args.config is not None else layout.agent_config)
+    wait = config.gate_wait_seconds if args.wait is None else args.wait
     options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
-                           keep_generations=args.keep_generations)
+                           keep_generations=args.keep_generations, wait=wait)
     done = sync(_machine(args, layout), config, report=Terminal(), options=options,
                 fetch_only=args.fetch_only, bundle=args.bundle)
     revision = done.revision[:12] if done.revision else "none"
@@ -509,7 +599,8 @@ def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.applying import ApplyOptions
 
     config = load_agent(args.config if args.config is not None else layout.agent_config)
-    options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout)
+    options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
+                           wait=config.gate_wait_seconds)
     agent = Agent(_machine(args, layout), config, report=_agent_report, options=options)
     signal.signal(signal.SIGTERM, lambda signum, frame: agent.stop.set())
     return agent.run(once=args.once)
@@ -653,6 +744,7 @@ COMMANDS = {
     "sync": cmd_sync,
     "agent": cmd_agent,
     "install-agent": cmd_install_agent,
+    "gates": cmd_gates,
     "pin": cmd_pin,
     "bundle": cmd_bundle,
     "fleet": cmd_fleet,

@@ -208,7 +208,16 @@ def as_json(layout: Layout, *, store: Objects | None = None,
         "serial": record.serial,
         "lineage": record.lineage,
         "agent": _agent(layout),
+        "deferred": _deferred(layout),
     }
+
+
+def _deferred(layout: Layout) -> dict[str, str] | None:
+    """The last apply, when a closed update gate deferred its cutover (from the journal)."""
+    from reconciler.execution.journal import deferral
+
+    found = deferral(layout)
+    return None if found is None else {"time": found[0], "reason": found[1]}
 
 
 def _agent(layout: Layout) -> dict[str, Any] | None:
@@ -243,6 +252,10 @@ def as_table(layout: Layout, *, store: Objects | None = None,
               f"{_cell(s.generation)}); `lpam apply` stops and uninstalls it before "
               "installing any app." for s in record.strays]
     strays += _footer(record, live, manager) + _agent_footer(layout)
+    deferred = _deferred(layout)
+    if deferred is not None:
+        strays.append(f"Last apply deferred at {deferred['time']}: "
+                      f"{_printable(deferred['reason'])}")
     if not table:
         return "\n".join(
             ["No app repositories. Write a desired state and run `lpam apply`.", *strays])

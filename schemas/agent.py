@@ -83,6 +83,10 @@ class AgentConfig(BaseModel):
     interval_seconds: float = Field(default=300, ge=10, le=86400,
                                     description="seconds between passes of `lpam agent`")
     trust: Trust | None = Field(default=None, description="apply only signed commits")
+    gate_wait_seconds: float = Field(
+        default=0, ge=0, le=3600, description="how long a pass may wait for closed update "
+        "gates before deferring to the next pass (a live bus has no history: give more "
+        "than gates.stationary_seconds)")
 
     @field_validator("vehicle")
     @classmethod
@@ -100,7 +104,7 @@ class AgentConfig(BaseModel):
 
 
 Result = Literal["applied", "nothing to do", "offline", "failed", "rolled back", "fetched",
-                 "stopped"]
+                 "stopped", "deferred"]
 
 
 class Attempt(BaseModel):

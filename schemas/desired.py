@@ -11,6 +11,8 @@ app:                                           # or `app: pandarecord`, or `app:
   params: {RATE_HZ: "10"}
 mirrors: {"https://github.com/": "git://192.168.4.1/"}   # optional: git's insteadOf
 ros: {workspace: /home/circles/catkin_ws, user: circles}  # optional: these are defaults
+vehicle: {source: {follow: /etc/libpanda.d/currentCan.csv}}  # optional: schemas/vehicle.py
+gates: {stationary_seconds: 60, windows: ["22:00-06:00"]}  # optional: no gates without it
 ```
 """
 
@@ -31,6 +33,7 @@ from schemas.names import (
     repository_key,
 )
 from schemas.service import Health, check_user
+from schemas.vehicle import GatesSpec, VehicleSpec
 
 CURRENT_VERSION = 1
 PARAM_VALUE_LIMIT = 4096  # an environment variable's value; kernels cap one at 128 KiB
@@ -188,6 +191,10 @@ class DesiredState(BaseModel):
         default_factory=dict, description="URL prefix → replacement, as git's "
         "url.<base>.insteadOf: app and ROS repositories are fetched from the replacement")
     ros: RosSpec = Field(default_factory=RosSpec)
+    vehicle: VehicleSpec = Field(default_factory=VehicleSpec,
+                                 description="how lpam reads the vehicle's speed")
+    gates: GatesSpec | None = Field(default=None, description="when a cutover may happen; "
+                                    "absent: at any moment")
 
     @field_validator("mirrors")
     @classmethod

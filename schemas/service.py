@@ -5,7 +5,8 @@ A scriptless app needs no lifecycle scripts: lpam writes the unit itself (reconc
 from an argument list — never a shell string, so a value cannot become a command — or from a
 roslaunch file of a package in the catkin workspace. Health says when a started app counts
 as up: it stayed active for `settle_seconds` without restarting and, when given, `command`
-exited 0 within `timeout_seconds`; otherwise the apply rolls back to the previous app.
+exited 0 within `timeout_seconds`, and, when `can:` is given, its ids were seen on the bus
+within `within_seconds`; otherwise the apply rolls back to the previous app.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ from __future__ import annotations
 import re
 
 from pydantic import BaseModel, ConfigDict, Field, StrictStr, field_validator
+
+from schemas.vehicle import CanHealth
 
 DEFAULT_SETTLE_SECONDS = 10.0
 DEFAULT_HEALTH_TIMEOUT = 10.0
@@ -74,6 +77,9 @@ class Health(BaseModel):
     timeout_seconds: float | None = Field(
         default=None, gt=0, le=3600,
         description=f"how long `command` may take (default {DEFAULT_HEALTH_TIMEOUT:g})")
+    can: CanHealth | None = Field(
+        default=None, description="CAN ids the app must put on the bus after it starts, "
+        "read from the desired state's vehicle source")
 
     @field_validator("command")
     @classmethod
@@ -90,5 +96,6 @@ class Health(BaseModel):
             command=base.command if self.command is None else self.command,
             timeout_seconds=base.timeout_seconds if self.timeout_seconds is None
             else self.timeout_seconds,
+            can=base.can if self.can is None else self.can,
         )
 

@@ -16,9 +16,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from reconciler.errors import DependencyError, GitError, RefNotFoundError, StepError
+from reconciler.errors import Deferred, DependencyError, GitError, RefNotFoundError, StepError
 from reconciler.execution.ports import Log
 from reconciler.layout import Layout
+from reconciler.vehicle.policy import GateState
 
 Folder = tuple[str, dict[str, str]]  # (tree hash, file name → text)
 
@@ -176,3 +177,36 @@ class MemoryPackages:
         raise DependencyError(
             f"apt-get could not install {', '.join(names)}: E: Unable to locate package "
             f"{unknown[0]}", details=[f"E: Unable to locate package {unknown[0]}"])
+
+
+class MemoryGate:
+    """The update gates as a test sets them: `closed` lists the reasons of the closed gates
+    at each check, in turn (the last stays); `hold` re-checks once per second of `wait`
+    without sleeping, as the real gate re-checks while frames arrive."""
+
+    def __init__(self, *closed: list[str]) -> None:
+        self._checks = list(closed) or [[]]
+        self.holds = 0  # how many times the locks were taken
+        self.releases = 0
+
+    def _next(self) -> list[str]:
+        return self._checks.pop(0) if len(self._checks) > 1 else self._checks[0]
+
+    def states(self) -> list[GateState]:
+        reasons = self._next()
+        if not reasons:
+            return [GateState("vehicle", True, "parked")]
+        return [GateState("vehicle", False, why) for why in reasons]
+
+    def hold(self, *, wait: float, progress: Callable[[str], None]) -> MemoryGate:
+        for _ in range(int(wait) + 1):
+            states = self.states()
+            if all(s.open for s in states):
+                self.holds += 1
+                return self
+            progress("waiting for the gates")
+        raise Deferred("the cutover is deferred: "
+                       + "; ".join(s.describe() for s in states if not s.open))
+
+    def release(self) -> None:
+        self.releases += 1

@@ -13,7 +13,15 @@ from dataclasses import dataclass, field
 from datetime import datetime
 
 from reconciler.errors import StepError
-from reconciler.execution.ports import DependencyPorts, Log, Scripts, Services, Store
+from reconciler.execution.ports import (
+    DependencyPorts,
+    Gate,
+    Listener,
+    Log,
+    Scripts,
+    Services,
+    Store,
+)
 from reconciler.layout import Layout
 from reconciler.state import write_record
 from schemas.record import AppRecord, StateRecord
@@ -39,6 +47,9 @@ class Context:
     deps: DependencyPorts | None = None
     log: Log = field(default=lambda line: None)  # long steps' output: the apply log
     stop_requested: Callable[[], bool] = field(default=lambda: False)
+    gate: Gate | None = None  # None: the cutover is not gated (no `gates:`, or --force)
+    gate_wait: float = 0.0  # seconds the cutover may wait for closed gates to open
+    listener: Listener | None = None  # the vehicle's bus, for `health.can`
 
     def dependencies(self) -> DependencyPorts:
         if self.deps is None:  # a caller that plans dependencies must give their ports

@@ -20,9 +20,10 @@ from concurrent.futures import CancelledError
 from typing import NoReturn
 
 from reconciler import generations
-from reconciler.errors import HealthError, LpamError, StepError, StopRequested
+from reconciler.errors import Deferred, HealthError, LpamError, StepError, StopRequested
 from reconciler.execution.context import Context
 from reconciler.execution.journal import Journal
+from reconciler.execution.ports import Gate, Held
 from reconciler.execution.steps import RUNNERS, check_out, prune, record_checkout
 from reconciler.planning.lifecycle import app_steps, target_of
 from schemas.plan import Phase, Plan, Step, StepKind
@@ -41,6 +42,23 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
     journal.open(ctx.clock(), warn=progress)
     ctx.save(ctx.record)  # as read: settled, strays adopted — before any exit file is pruned
     previous = ctx.record.app
+    held: list[Held] = []
+    try:
+        _run(plan, ctx, journal, progress, previous=previous, record_result=record_result,
+             held=held)
+    finally:
+        for lock in held:
+            lock.release()
+    journal.close(ctx.clock())
+    if record_result:  # an operator's start, stop or rollback makes no generation
+        _finish(ctx, "applied", None)
+        prune(ctx, keep=keep)
+
+
+def _run(plan: Plan, ctx: Context, journal: Journal, progress: Callable[[str], None], *,
+         previous: AppRecord | None, record_result: bool, held: list[Held]) -> None:
+    """The steps in order; the gates are passed (and their locks added to `held`) just
+    before the first cutover step."""
     total = len(plan.steps)
     number = 0
     while number < total:
@@ -50,6 +68,8 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
             journal.close(ctx.clock())
             raise StopRequested(f"stopped on request before {step.id}; nothing on the "
                                 "running app was changed", hint="the next pass resumes")
+        if step.phase is Phase.CUTOVER and not held and ctx.gate is not None:
+            held.append(_pass_gates(ctx.gate, ctx, journal, progress))
         batch = _checkouts_from(plan.steps, number)
         try:
             if len(batch) > 1:
@@ -63,10 +83,18 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
             _fail(failed.step, failed.error, previous, ctx, journal, progress, record_result)
         except LpamError as exc:
             _fail(step, exc, previous, ctx, journal, progress, record_result)
-    journal.close(ctx.clock())
-    if record_result:  # an operator's start, stop or rollback makes no generation
-        _finish(ctx, "applied", None)
-        prune(ctx, keep=keep)
+
+
+def _pass_gates(gate: Gate, ctx: Context, journal: Journal,
+                progress: Callable[[str], None]) -> Held:
+    """Wait for the gates at the boundary of the cutover. Closed after the wait: the apply
+    ends here, deferred — everything is prepared, nothing on the running app changed."""
+    try:
+        return gate.hold(wait=ctx.gate_wait, progress=progress)
+    except Deferred as deferred:
+        journal.defer(ctx.clock(), deferred.message)
+        journal.close(ctx.clock())
+        raise
 
 
 class _Failed(Exception):

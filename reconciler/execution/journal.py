@@ -4,7 +4,9 @@ Each step is journalled before its work ("begin") and after it ("end" or "fail")
 Mender persists its state before each state's work. The journal holds the last apply
 only. After a power cut or SIGKILL, a step with "begin" and no end is the interrupted one:
 the next apply reports it and runs it again, while steps that ended are not repeated
-(they are already reflected in the state record). A torn last line is ignored.
+(they are already reflected in the state record). A torn last line is ignored. An apply
+whose cutover a closed update gate deferred ends with a "deferred" event (its reasons)
+before "apply-end": `lpam status` shows it until the next apply starts a new journal.
 
 The journal is advisory — the state record is what lpam trusts — so a damaged one never
 blocks anything: a reader skips what it cannot parse (bad UTF-8, JSON nested too deep, a
@@ -63,6 +65,10 @@ class Journal:
     def fail(self, step: str, now: datetime, message: str) -> None:
         self._write("fail", step, now, message=message)
 
+    def defer(self, now: datetime, reason: str) -> None:
+        """The cutover was due but a gate stayed closed; `close` follows."""
+        self._write("deferred", None, now, message=reason)
+
     def close(self, now: datetime) -> None:
         self._write("apply-end", None, now)
 
@@ -111,6 +117,17 @@ def read_events(layout: Layout) -> list[dict[str, object]]:
         if isinstance(event, dict):
             events.append(event)
     return events
+
+
+def deferral(layout: Layout) -> tuple[str, str] | None:
+    """(when, why) if the last apply ended deferred by a closed gate."""
+    for event in reversed(read_events(layout)):
+        if event.get("event") == "deferred":
+            at, why = event.get("at"), event.get("message")
+            if isinstance(at, str) and isinstance(why, str):
+                return at[:40], why[:2000]
+            return None
+    return None
 
 
 def interrupted_steps(layout: Layout) -> list[str]:

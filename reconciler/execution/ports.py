@@ -11,9 +11,12 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from reconciler.unit import Unit, UnitState
+
+if TYPE_CHECKING:
+    from reconciler.vehicle.policy import GateState
 
 
 class Store(Protocol):
@@ -159,3 +162,31 @@ class DependencyPorts:
     packages: Packages
     envs: PythonEnvs
     workspace: Callable[[Path, str], Workspace]
+
+
+class Held(Protocol):
+    """What an open gate holds through the cutover (the apps' update locks)."""
+
+    def release(self) -> None: ...
+
+
+class Gate(Protocol):
+    """The update gates (adapters/gate.py): the cutover waits for a safe moment.
+
+    `hold` re-checks until every gate is open or `wait` seconds have passed; open, it takes
+    the apps' update locks and keeps them until `release`, so that no app begins a critical
+    section mid-swap; still closed, it raises `Deferred` naming each closed gate. `states`
+    is one look now, holding nothing (`lpam gates`)."""
+
+    def states(self) -> Sequence[GateState]: ...
+
+    def hold(self, *, wait: float, progress: Callable[[str], None]) -> Held: ...
+
+
+class Listener(Protocol):
+    """The vehicle's CAN traffic, for a health check by CAN (adapters/gate.py)."""
+
+    def heard(self, ids: Sequence[int], *, since: float, within: float) -> set[int]:
+        """Which of `ids` appear on the bus in frames stamped at or after `since` (epoch
+        seconds), listening at most `within` seconds; stops as soon as all were heard."""
+        ...

@@ -392,6 +392,7 @@ def verify(step: Step, ctx: Context) -> None:
     timeout = float(settings.get("timeout_seconds", "10"))
     if app.service is not None and seconds > 0:
         settle(ctx, app, app.service, seconds)
+    began = ctx.clock().timestamp() - seconds  # frames the app sent while it settled count
     command = _argv(step, "health_command")
     if command is not None:
         place = _place(ctx, _meta(ctx, app))
@@ -402,6 +403,28 @@ def verify(step: Step, ctx: Context) -> None:
                 f"{app.name}: its health check `{' '.join(command)}` failed: {output}",
                 hint="fix the app (or its health settings) and apply again",
                 details=log_tail(ctx, app.service))
+    _heard_on_bus(step, ctx, app, began)
+
+
+def _heard_on_bus(step: Step, ctx: Context, app: AppRecord, began: float) -> None:
+    """`health.can`: the app must put each of its ids on the bus; one missing fails health
+    (and the apply rolls back). Read from the desired state's vehicle source."""
+    can = step.args.get("health_can")
+    if not isinstance(can, dict) or not can.get("ids"):
+        return
+    ids = [int(text, 16) for text in can["ids"].split()]
+    within = float(can.get("within_seconds", "10"))
+    if ctx.listener is None:
+        raise HealthError(f"{app.name}: its health check needs the CAN bus, and this "
+                          "command reads none", hint="apply the desired state that "
+                          "declares the vehicle source")
+    missing = sorted(set(ids) - ctx.listener.heard(ids, since=began, within=within))
+    if missing:
+        raise HealthError(
+            f"{app.name}: did not put {', '.join(f'0x{i:X}' for i in missing)} on the CAN "
+            f"bus within {within:g} s of starting",
+            hint="check that the app talks to the bus (and the vehicle source lpam reads), "
+            "or its health.can settings", details=log_tail(ctx, app.service))
 
 
 def prune(ctx: Context, *, keep: int = 3) -> None:

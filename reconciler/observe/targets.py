@@ -260,6 +260,8 @@ def _app_target(
             command=tuple(health.command) if health.command is not None else None,
             timeout_seconds=DEFAULT_HEALTH_TIMEOUT if health.timeout_seconds is None
             else health.timeout_seconds,
+            can_ids=tuple(health.can.ids) if health.can is not None else (),
+            can_within=health.can.within_seconds if health.can is not None else 10.0,
         ),
     )
 

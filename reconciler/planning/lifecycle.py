@@ -123,7 +123,7 @@ def _reconfigure(old: AppRecord, new: AppTarget, target: str, *, start: bool,
 
 def _checks(health: HealthTarget) -> bool:
     """Whether a health check has anything to check (`settle_seconds: 0` turns it off)."""
-    return health.settle_seconds > 0 or health.command is not None
+    return health.settle_seconds > 0 or health.command is not None or bool(health.can_ids)
 
 
 def _stray_steps(record: StateRecord) -> list[Step]:
@@ -164,6 +164,9 @@ def _wanted(new: AppTarget, gen: str) -> dict[str, ArgValue]:
                       "timeout_seconds": f"{health.timeout_seconds:g}"}
     if health.command is not None:
         args["health_command"] = list(health.command)
+    if health.can_ids:
+        args["health_can"] = {"ids": " ".join(f"0x{i:X}" for i in health.can_ids),
+                              "within_seconds": f"{health.can_within:g}"}
     deps = new.deps
     if deps.pip:
         args["pip"] = list(deps.pip)

@@ -54,6 +54,8 @@ class HealthTarget:
     settle_seconds: float = 10.0
     command: tuple[str, ...] | None = None
     timeout_seconds: float = 10.0
+    can_ids: tuple[int, ...] = ()  # CAN ids the app must put on the bus after it starts
+    can_within: float = 10.0
 
 
 @dataclass(frozen=True)

@@ -59,7 +59,7 @@ class Agent:
             self.passes.append(done)
             if once:
                 return done.code
-            failures = failures + 1 if done.code else 0
+            failures = failures + 1 if done.failed else 0  # a deferral is no failure
             seconds = next_wait(self.config.interval_seconds, failures, self.draw())
             self.report(Progress(f"next pass in {seconds:.0f} s"))
             if self.wait(seconds):

@@ -20,6 +20,7 @@ from reconciler.workflow.planning import prepare
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
     from reconciler.execution.lock import Lock
+    from reconciler.execution.ports import Gate, Listener
     from schemas.desired import DesiredState
     from schemas.plan import Plan
 
@@ -30,6 +31,7 @@ class ApplyOptions:
     script_timeout: float = 600.0  # an app script running longer is killed
     keep_generations: int = 3  # good generations kept on disk for `lpam rollback`
     release: bool = False  # end a rollback's hold first
+    wait: float = 0.0  # seconds the cutover may wait for closed gates to open
 
 
 @dataclass(frozen=True)
@@ -67,12 +69,17 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
             return Applied(0, _standing(machine))
         if not confirm(made):
             return Applied(0, _standing(machine), cancelled=True)
-        return execute_plan(machine, store, made, lock, options=options, report=report)
+        base = path.resolve().parent
+        return execute_plan(machine, store, made, lock, options=options, report=report,
+                            gate=machine.gate_for(desired, base),
+                            listener=machine.listener_for(desired, base))
 
 
 def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOptions,
-                report: Report) -> Applied:
-    """`lpam apply PLANFILE`: refused when it is stale, edited, offline or inexact."""
+                report: Report, gate: Gate | None = None,
+                listener: Listener | None = None) -> Applied:
+    """`lpam apply PLANFILE`: refused when it is stale, edited, offline or inexact. A plan
+    holds no gates: `gate` and `listener` are the desired state's, which the caller read."""
     from reconciler.execution.lock import apply_lock
     from reconciler.planning.plan import check_plan
     from reconciler.state import read_record
@@ -81,15 +88,17 @@ def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOpt
         record = read_record(machine.layout)
         check_plan(saved, lineage=record.lineage, serial=record.serial, source=source)
         return execute_plan(machine, machine.store(), saved, lock, options=options,
-                            report=report)
+                            report=report, gate=gate, listener=listener)
 
 
 def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
-                 options: ApplyOptions, report: Report) -> Applied:
+                 options: ApplyOptions, report: Report, gate: Gate | None,
+                 listener: Listener | None) -> Applied:
     from reconciler.execution.executor import execute
 
     ctx, log = machine.context(store, lock, command="apply",
-                               script_timeout=options.script_timeout, report=report)
+                               script_timeout=options.script_timeout, report=report,
+                               gate=gate, gate_wait=options.wait, listener=listener)
     execute(made, ctx, progress=lambda text: report(Progress(text)),
             keep=options.keep_generations)
     return Applied(len(made.steps), _standing(machine, ctx.record.app), log)

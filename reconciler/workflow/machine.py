@@ -24,7 +24,8 @@ if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
     from reconciler.execution.context import Context
     from reconciler.execution.lock import Lock
-    from reconciler.execution.ports import DependencyPorts, Services
+    from reconciler.execution.ports import DependencyPorts, Gate, Listener, Services
+    from schemas.desired import DesiredState
 
 
 def now() -> datetime:
@@ -105,13 +106,30 @@ class Machine:
 
         deadline.warm()
 
+    def gate_for(self, desired: DesiredState, base_dir: Path) -> Gate | None:
+        """The update gates `desired` declares (None: it declares none, nothing is gated);
+        relative paths in it are relative to `base_dir`, its folder."""
+        if desired.gates is None:
+            return None
+        from reconciler.adapters.gate import VehicleGate
+
+        return VehicleGate(desired.gates, desired.vehicle, root=self.layout.root,
+                           base_dir=base_dir)
+
+    def listener_for(self, desired: DesiredState, base_dir: Path) -> Listener:
+        """The vehicle's bus as `desired` names it, for health checks by CAN."""
+        from reconciler.adapters.gate import VehicleListener
+
+        return VehicleListener(desired.vehicle, root=self.layout.root, base_dir=base_dir)
+
     def store(self) -> GitStore:
         from reconciler.adapters.git import GitStore
 
         return GitStore(self.layout, timeout=self.network_timeout)
 
     def context(self, store: GitStore, lock: Lock, *, command: str, script_timeout: float,
-                report: Report) -> tuple[Context, Path]:
+                report: Report, gate: Gate | None = None, gate_wait: float = 0.0,
+                listener: Listener | None = None) -> tuple[Context, Path]:
         """What the steps of one run may touch, and the log of its scripts and commands."""
         from reconciler.adapters.scripts import ScriptRunner
         from reconciler.execution.context import Context
@@ -125,6 +143,7 @@ class Machine:
             scripts=ScriptRunner(root=self.layout.root, log=log, runs=self.layout.runs,
                                  timeout=script_timeout, lock_fd=lock.fd, note=lock.note),
             deps=self.deps, log=CommandLog(log, report), stop_requested=self.stop_requested,
+            gate=gate, gate_wait=gate_wait, listener=listener,
         )
         return ctx, log
 

@@ -12,7 +12,8 @@ the desired state changes, plan and apply report it and propose nothing.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from datetime import datetime
 
 from reconciler import __version__, generations
@@ -42,17 +43,36 @@ def operate(ctx: Context, action: str, *, progress: Progress) -> str:
     if app is None:
         raise LpamError(f"no app is installed: nothing to {action}",
                         hint="install one with `lpam apply`")
-    if action == "stop":
-        ctx.save_app(app.model_copy(update={"held": True}))
-    steps = operator_steps(ctx.record, action, generations.present(ctx.layout))
-    if steps:
-        execute(_plan(ctx, steps, f"{action} {app.name}", ctx.clock()), ctx,
-                progress=progress, record_result=False)
+    with gates_passed(ctx, progress):
+        if action == "stop":
+            ctx.save_app(app.model_copy(update={"held": True}))
+        steps = operator_steps(ctx.record, action, generations.present(ctx.layout))
+        if steps:
+            execute(_plan(ctx, steps, f"{action} {app.name}", ctx.clock()), ctx,
+                    progress=progress, record_result=False)
     if action == "stop":
         return (f"Stopped {app.name}; it stays stopped until `lpam start` or a change of "
                 "the desired state.")
     verb = {"start": "Started", "restart": "Restarted"}[action]
     return f"{verb} {app.name}." if steps else f"{app.name} is already running."
+
+
+@contextmanager
+def gates_passed(ctx: Context, progress: Progress) -> Iterator[None]:
+    """An operator command obeys the update gates (unless --force, which gives none): they
+    are passed before anything is written — a stop's hold mark included — and their locks
+    held to the end. Closed: `Deferred`, and nothing changed."""
+    gate = ctx.gate
+    if gate is None:
+        yield
+        return
+    held = gate.hold(wait=ctx.gate_wait, progress=progress)
+    ctx.gate = None  # passed: the executor need not ask again
+    try:
+        yield
+    finally:
+        ctx.gate = gate
+        held.release()
 
 
 def previous_good(ctx: Context) -> HistoryEntry:
@@ -76,12 +96,13 @@ def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,
     written first: if lpam dies mid-rollback, the next plan finishes it (cli._prepare)."""
     hold = Hold(desired=desired_fingerprint(desired), generation=entry.generation,
                 target=entry)
-    ctx.save(ctx.record.model_copy(update={"hold": hold}))
-    steps = app_steps(ctx.record, target_of(entry.installed()),
-                      generations.present(ctx.layout), verify=False)
-    if steps:
-        execute(_plan(ctx, steps, f"roll back to {entry.app}@{entry.generation}",
-                      ctx.clock()), ctx, progress=progress, record_result=False)
+    with gates_passed(ctx, progress):
+        ctx.save(ctx.record.model_copy(update={"hold": hold}))
+        steps = app_steps(ctx.record, target_of(entry.installed()),
+                          generations.present(ctx.layout), verify=False)
+        if steps:
+            execute(_plan(ctx, steps, f"roll back to {entry.app}@{entry.generation}",
+                          ctx.clock()), ctx, progress=progress, record_result=False)
     return (f"Rolled back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}). "
             "It holds: plan and apply propose nothing until the desired state changes "
             "(or `lpam apply --release`).")

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 
 from reconciler.errors import (
     ConfigError,
+    Deferred,
     GitError,
     HealthError,
     LpamError,
@@ -50,7 +51,7 @@ DEFAULT_FILE = "desired-state.yaml"
 @dataclass(frozen=True)
 class Synced:
     """How a pass ended; `code` is the process exit code (0 applied, nothing to do or
-    offline; 1 failed)."""
+    offline; 1 failed; 75 deferred by a closed gate, as `lpam apply`)."""
 
     result: Result
     revision: str | None
@@ -58,8 +59,12 @@ class Synced:
     hint: str | None = None
 
     @property
+    def failed(self) -> bool:
+        return self.result in ("failed", "rolled back")
+
+    @property
     def code(self) -> int:
-        return 1 if self.result in ("failed", "rolled back") else 0
+        return 1 if self.failed else Deferred.exit_code if self.result == "deferred" else 0
 
 
 def sync(machine: Machine, config: AgentConfig, *, report: Report,
@@ -116,6 +121,9 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
                      report=report, local=offline is not None)
     except StopRequested as exc:  # not a failure: the next pass tries the revision again
         return _record(machine, status, Synced("stopped", revision, exc.message))
+    except Deferred as exc:  # prepared, not cut over: the next pass tries again
+        report(Note(exc.message))
+        return _record(machine, status, Synced("deferred", revision, exc.message))
     except LpamError as exc:
         failed: Result = "rolled back" if isinstance(exc, HealthError) else "failed"
         return _record(machine, status, Synced(failed, revision, _reason(exc), exc.hint))

@@ -1,5 +1,6 @@
-"""Fixtures of the fleet tests (sync, agent): a fleet's desired-state repository and the
-app repository beside it, served by the test's git daemon, and a car that follows it."""
+"""Fixtures of the CLI tests: an lpam confined to the test's root and the app repository
+of apps.py; and of the fleet tests (sync, agent): a fleet's desired-state repository and
+the app repository beside it, served by the test's git daemon, and a car that follows it."""
 
 from __future__ import annotations
 
@@ -10,6 +11,19 @@ import pytest
 
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, apps_repo
+
+
+@pytest.fixture
+def lpam(tmp_path: Path) -> Lpam:
+    return Lpam(tmp_path / "root")
+
+
+@pytest.fixture
+def repo(make_repo: Callable[[str], RepoBuilder]) -> RepoBuilder:
+    """apps.git with the apps alpha and beta (apps.py)."""
+    builder = make_repo("apps.git")
+    apps_repo(builder)
+    return builder
 
 
 def fleet_state(app: str, pin: str | None = None, **params: str) -> str:

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from datetime import datetime
 from pathlib import Path
 
 import pytest
@@ -22,6 +23,7 @@ from reconciler.workflow.events import Event, Progress
 from reconciler.workflow.machine import Machine
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam
+from tests.integration.conftest import fleet_state
 
 
 def test_waits_grow_after_failures_up_to_a_cap_with_jitter() -> None:
@@ -138,3 +140,25 @@ def test_agent_once_is_one_pass_with_its_exit_code(car: Lpam, fleet: RepoBuilder
 @pytest.fixture(autouse=True)
 def _daemon(git_daemon: GitDaemon) -> None:
     """Every test here talks to the fleet's daemon."""
+
+
+def test_a_deferred_pass_is_no_failure_and_the_next_pass_tries_again(
+    car: Lpam, fleet: RepoBuilder,
+) -> None:
+    first = agent_for(car)
+    first.limit = 1
+    assert first.run() == 0 and first.passes[0].result == "applied"
+    later = (datetime.now().astimezone().hour + 2) % 24
+    window = f"{later:02d}:00-{(later + 1) % 24:02d}:00"  # closed now
+    fleet.commit("beta, at night only", {"desired-state.yaml": fleet_state("beta") + (
+        f"gates: {{on_no_signal: allow, windows: ['{window}']}}\n")})
+    fleet.push()
+    agent = agent_for(car)
+    assert agent.run() == 0
+    assert [p.result for p in agent.passes] == ["deferred", "deferred"]  # tried again
+    assert agent.waited == [300, 300]  # no backoff
+    done = car("sync")
+    assert done.returncode == 75 and "outside" in done.stderr, done.stderr
+    status = car.status()
+    assert status["agent"]["last_attempt"]["result"] == "deferred"
+    assert status["app"]["name"] == "alpha" and status["app"]["running"] is True

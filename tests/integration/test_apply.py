@@ -14,18 +14,6 @@ from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, add_app, apps_repo, desired
 
 
-@pytest.fixture
-def lpam(tmp_path: Path) -> Lpam:
-    return Lpam(tmp_path / "root")
-
-
-@pytest.fixture
-def repo(make_repo: Callable[[str], RepoBuilder]) -> RepoBuilder:
-    builder = make_repo("apps.git")
-    apps_repo(builder)
-    return builder
-
-
 def test_first_apply_from_empty_installs_and_starts(
     lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
 ) -> None:

@@ -13,7 +13,6 @@ import os
 import signal
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import pytest
 
@@ -27,11 +26,6 @@ if [ ! -e "$LPAM_ROOT/no-hang" ]; then
   for _ in $(seq 600); do [ -e "$LPAM_ROOT/release" ] && break; sleep 0.1; done
   touch "$LPAM_ROOT/start-ended"
 fi"""
-
-
-@pytest.fixture
-def lpam(tmp_path: Path) -> Lpam:
-    return Lpam(tmp_path / "root")
 
 
 def record(lpam: Lpam) -> dict[str, object]:

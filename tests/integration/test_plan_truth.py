@@ -24,11 +24,6 @@ from tests.integration.test_bus_safety import HANG_UNTIL_RELEASED
 from tests.integration.test_crash import descendants, wait_for, wait_gone
 
 
-@pytest.fixture
-def lpam(tmp_path: Path) -> Lpam:
-    return Lpam(tmp_path / "root")
-
-
 def checkout(lpam: Lpam, key: str = "apps") -> Path:
     return lpam.root / "var/lib/lpam/repositories" / key
 
