@@ -109,12 +109,14 @@ def lpam(*args: str, check: bool = True) -> int:
     return code
 
 
-def switched_desired_state(app: str, params: dict[str, str], name: str) -> Path:
+def switched_desired_state(app: str, params: dict[str, str], name: str,
+                           **extra: object) -> Path:
     """The example desired state with another app, comments kept (round-trip YAML)."""
     yaml = YAML()
     data = yaml.load(EXAMPLE.read_text())
     data["app"]["name"] = app
     data["app"]["params"] = params
+    data.update(extra)
     data["repositories"][0]["url"] = REPO.name  # relative to the new file's folder
     path = DEMO / f"desired-state.{name}.yaml"
     with path.open("w") as out:
@@ -185,10 +187,52 @@ def main() -> int:
     commit_to_fleet("version: 1\napp: {name: speed-monitor, parmas: {}}\n", "typo")
     lpam("sync", check=False)
     lpam("sync")
-    print("\n== 10. Stop supervisord (and the app it runs)")
+    print("\n== 10. Update gates: the switch waits until the car is parked. The real RAV4")
+    print("   drive (../shared/data) is replayed as the CSV the recording app writes")
+    gates_on_the_drive()
+    print("\n== 11. Stop supervisord (and the app it runs)")
     lpam("services", "shutdown")
     print("\nDemo complete. The sandbox root is .demo/root; rerun to start afresh.")
     return 0
+
+
+def drive_at(instant: float) -> bool:
+    """The recording app's CSV as it stands `instant` seconds into the drive, this instant
+    being now, behind /etc/libpanda.d/currentCan.csv; False without the recording."""
+    from tests.canlog import between, recording_path, write_csv
+
+    path = recording_path()
+    if path is None:
+        return False
+    import can
+
+    frames = list(can.CanutilsLogReader(path))
+    data = ROOT / "var" / "log" / "demo-drive" / f"at-{instant:g}.csv"
+    data.parent.mkdir(parents=True, exist_ok=True)
+    write_csv(data, between(frames, max(0.0, instant - 120), instant),
+              shift=time.time() - (frames[0].timestamp + instant))
+    link = ROOT / "etc" / "libpanda.d" / "currentCan.csv"
+    link.parent.mkdir(parents=True, exist_ok=True)
+    link.unlink(missing_ok=True)
+    link.symlink_to(data)
+    return True
+
+
+def gates_on_the_drive() -> None:
+    if not drive_at(200.0):
+        print("   skipped: the recorded drive is not in ../shared/data beside the checkout")
+        return
+    gated = switched_desired_state("can-logger", {"LOG_RATE_HZ": "10"}, "gated",
+                                   gates={"stationary_seconds": 60})
+    print("   200 s into the drive the car is moving: the switch is prepared, then deferred")
+    code = lpam("apply", "-f", str(gated), "--yes", check=False)
+    if code != 75:
+        raise SystemExit(f"demo failed: a moving car should defer the switch (75), not {code}")
+    lpam("status")
+    print("\n   740 s into the drive it has stood since 669 s: parked, the switch goes through")
+    drive_at(740.0)
+    lpam("gates", "-f", str(gated))
+    lpam("apply", "-f", str(gated), "--yes")
 
 
 if __name__ == "__main__":

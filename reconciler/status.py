@@ -254,7 +254,7 @@ def as_table(layout: Layout, *, store: Objects | None = None,
     strays += _footer(record, live, manager) + _agent_footer(layout)
     deferred = _deferred(layout)
     if deferred is not None:
-        strays.append(f"Last apply deferred at {deferred['time']}: "
+        strays.append(f"Cutover deferred at {deferred['time']} (the update gates): "
                       f"{_printable(deferred['reason'])}")
     if not table:
         return "\n".join(
