@@ -188,7 +188,7 @@ def main() -> int:
     lpam("sync", check=False)
     lpam("sync")
     print("\n== 10. Update gates: the switch waits until the car is parked. The real RAV4")
-    print("   drive (../shared/data) is replayed as the CSV the recording app writes")
+    print("   drive (tests/fixtures) is replayed as the CSV the recording app writes")
     gates_on_the_drive()
     print("\n== 11. Stop supervisord (and the app it runs)")
     lpam("services", "shutdown")
@@ -199,14 +199,11 @@ def main() -> int:
 def drive_at(instant: float) -> bool:
     """The recording app's CSV as it stands `instant` seconds into the drive, this instant
     being now, behind /etc/libpanda.d/currentCan.csv; False without the recording."""
-    from tests.canlog import between, recording_path, write_csv
+    from tests.canlog import between, recording, recording_path, write_csv
 
-    path = recording_path()
-    if path is None:
+    if recording_path() is None:
         return False
-    import can
-
-    frames = list(can.CanutilsLogReader(path))
+    frames = recording()
     data = ROOT / "var" / "log" / "demo-drive" / f"at-{instant:g}.csv"
     data.parent.mkdir(parents=True, exist_ok=True)
     write_csv(data, between(frames, max(0.0, instant - 120), instant),
@@ -220,7 +217,7 @@ def drive_at(instant: float) -> bool:
 
 def gates_on_the_drive() -> None:
     if not drive_at(200.0):
-        print("   skipped: the recorded drive is not in ../shared/data beside the checkout")
+        print("   skipped: the recorded drive is not in tests/fixtures")
         return
     gated = switched_desired_state("can-logger", {"LOG_RATE_HZ": "10"}, "gated",
                                    gates={"stationary_seconds": 60})

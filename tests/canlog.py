@@ -12,6 +12,7 @@ block ends, waiting a fraction of a second at most.
 from __future__ import annotations
 
 import functools
+import gzip
 import os
 import re
 import threading
@@ -32,10 +33,13 @@ TICK = 0.1
 
 
 def recording_path() -> Path | None:
-    """Where the drive is: `../shared/data/` from the repository root (or LPAM_CAN_DRIVE)."""
+    """Where the drive is: LPAM_CAN_DRIVE, else `../shared/data/` from the repository root,
+    else its gzip-compressed copy in tests/fixtures (tests/fixtures/README.md)."""
     named = os.environ.get("LPAM_CAN_DRIVE")
     root = Path(__file__).resolve().parent.parent
-    for candidate in ([Path(named)] if named else []) + [root.parent / "shared/data" / RECORDING]:
+    candidates = ([Path(named)] if named else []) + [
+        root.parent / "shared/data" / RECORDING, root / "tests/fixtures" / (RECORDING + ".gz")]
+    for candidate in candidates:
         if candidate.is_file():
             return candidate
     return None
@@ -43,7 +47,21 @@ def recording_path() -> Path | None:
 
 @functools.cache
 def _load(path: Path) -> tuple[can.Message, ...]:
+    if path.suffix == ".gz":
+        with gzip.open(path, "rt") as text:
+            return tuple(can.CanutilsLogReader(text))
     return tuple(can.CanutilsLogReader(path))
+
+
+def recording_text() -> str:
+    """The drive as candump text (for tests that read its lines themselves)."""
+    path = recording_path()
+    if path is None:
+        pytest.skip(f"the recorded drive {RECORDING} is not available")
+    if path.suffix == ".gz":
+        with gzip.open(path, "rt") as text:
+            return text.read()
+    return path.read_text()
 
 
 def recording() -> list[can.Message]:

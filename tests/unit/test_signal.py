@@ -17,9 +17,8 @@ from hypothesis import strategies as st
 
 from reconciler.errors import ConfigError
 from reconciler.vehicle.signal import RAV4_SPEED, ByteOrder, SignalDef, check, decode, from_dbc, raw
+from tests.canlog import recording_text
 
-RECORDING = (Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
-             / "rav4-hybrid-2021-08-13.candump.log")
 FRAME = re.compile(r"^\((?P<ts>[\d.]+)\) \S+ (?P<id>[0-9A-F]+)#(?P<data>[0-9A-F]*)$")
 
 RAV4_DBC = """VERSION ""
@@ -34,10 +33,8 @@ BO_ 180 SPEED: 8 XXX
 @pytest.fixture(scope="module")
 def drive() -> dict[str, bytes]:
     """Every SPEED (0x0B4) frame of the recorded drive, by its timestamp."""
-    if not RECORDING.exists():
-        pytest.skip(f"the RAV4 recording is not at {RECORDING} (see /work/shared/data)")
     frames = {}
-    for line in RECORDING.read_text().splitlines():
+    for line in recording_text().splitlines():
         match = FRAME.match(line)
         if match and int(match["id"], 16) == RAV4_SPEED.frame_id:
             frames[match["ts"]] = bytes.fromhex(match["data"])
