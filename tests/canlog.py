@@ -45,6 +45,11 @@ def recording_path() -> Path | None:
     return None
 
 
+def read_log(path: Path) -> list[can.Message]:
+    """A candump log's frames, gzip-compressed or not."""
+    return list(_load(path))
+
+
 @functools.cache
 def _load(path: Path) -> tuple[can.Message, ...]:
     if path.suffix == ".gz":

@@ -237,13 +237,15 @@ class SocketcandServer:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tests.socketcand")
-    parser.add_argument("log", type=Path, help="a candump -l log to replay")
+    parser.add_argument("log", type=Path, help="a candump -l log to replay (.gz too)")
     parser.add_argument("--offset", type=float, default=0.0, help="seconds into the log")
     parser.add_argument("--port", type=int, default=0, help="0: a free port")
     parser.add_argument("--speed", type=float, default=1.0, help="replay pace factor")
     parser.add_argument("--channel", default="can0")
     args = parser.parse_args(argv)
-    frames = list(can.CanutilsLogReader(args.log))
+    from tests.canlog import read_log
+
+    frames = read_log(args.log)
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:

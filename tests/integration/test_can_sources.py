@@ -221,10 +221,11 @@ def test_no_traceback_or_log_line_of_python_can_reaches_the_terminal() -> None:
         recording()
     done = run_python(f"""
         import time
-        import can
+        from pathlib import Path
         from reconciler.adapters.can.sources import open_source
+        from tests.canlog import read_log
         from tests.socketcand import SocketcandServer
-        frames = list(can.CanutilsLogReader({str(recording_path())!r}))
+        frames = read_log(Path({str(recording_path())!r}))
         with SocketcandServer(frames, offset=330, speed=20.0) as server:
             source = open_source(bus=server.config())
             got = list(source.frames(time.monotonic() + 0.6))

@@ -27,7 +27,7 @@ LINK = "etc/libpanda.d/currentCan.csv"
 
 
 def drive() -> list:  # type: ignore[type-arg]
-    frames = recording()  # skips the test when ../shared/data is not beside the checkout
+    frames = recording()  # the drive: ../shared/data, else tests/fixtures
     return frames
 
 
