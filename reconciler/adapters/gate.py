@@ -16,6 +16,7 @@ cannot be opened or read, a DBC that cannot be read, frames too short for the si
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -222,7 +223,7 @@ class VehicleListener:
             return seen  # nothing can be heard: the check fails, naming the ids
         try:
             backlog = source.backlog(max(0.0, time.time() - since) + within)
-            for message in (*backlog, *source.frames(deadline)):
+            for message in itertools.chain(backlog, source.frames(deadline)):
                 if message.timestamp >= since and message.arbitration_id in wanted:
                     seen.add(message.arbitration_id)
                     if seen == wanted:
