@@ -390,13 +390,13 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
     if args.planfile is not None:
         saved = load_plan(args.planfile)
         machine = _machine(args, layout)
-        desired = _desired_if_any(args, layout)
-        base = _desired_path(args, layout).resolve().parent
+        found = _desired_if_any(args, layout, machine)
+        base = found[0].resolve().parent if found else layout.root
         print()
         done = apply_saved(machine, saved, str(args.planfile), options=options,
                            report=Terminal(),
-                           gate=machine.gate_for(desired, base) if desired else None,
-                           listener=machine.listener_for(desired, base) if desired else None)
+                           gate=machine.gate_for(found[1], base) if found else None,
+                           listener=machine.listener_for(found[1], base) if found else None)
     else:
         path = _desired_path(args, layout)
         machine = _machine(args, layout)
@@ -438,26 +438,26 @@ def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def _gate(args: argparse.Namespace, layout: Layout, machine: Machine) -> Gate | None:
-    """The update gates of the desired state (`-f FILE` or the default): what operator
-    commands obey, unless `--force`."""
+    """The update gates operator commands obey, unless `--force`: those of `-f FILE`, else
+    of the default desired state, else of the one the agent last applied."""
     if getattr(args, "force", False):
         return None
-    desired = _desired_if_any(args, layout)
-    path = _desired_path(args, layout)
-    return machine.gate_for(desired, path.resolve().parent) if desired else None
+    found = _desired_if_any(args, layout, machine)
+    return machine.gate_for(found[1], found[0].resolve().parent) if found else None
 
 
-def _desired_if_any(args: argparse.Namespace, layout: Layout) -> DesiredState | None:
-    """The desired state (`-f FILE` or the default) when there is one, for its gates and
-    vehicle source; one that cannot be read leaves the gates unknown, which is refused
-    rather than guessed."""
+def _desired_if_any(args: argparse.Namespace, layout: Layout,
+                    machine: Machine) -> tuple[Path, DesiredState] | None:
+    """The desired state in force (see `_gate`), for its gates and vehicle source; one that
+    cannot be read leaves the gates unknown, which is refused rather than guessed."""
     from reconciler.documents import load_desired
+    from reconciler.workflow.sync import applied_desired
 
     path = _desired_path(args, layout)
-    if not path.exists():
-        return None
     try:
-        return load_desired(path)
+        if path.exists():
+            return path, load_desired(path)
+        return None if args.file else applied_desired(machine)
     except LpamError as exc:
         raise LpamError(f"cannot read the update gates: {exc.message}",
                         hint="fix the desired state, or pass --force to ignore the gates "

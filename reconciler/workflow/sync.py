@@ -233,6 +233,21 @@ def _desired(machine: Machine, config: AgentConfig, vehicle: str,
                       hint=f"commit a desired state for this vehicle ({vehicle}) or for all")
 
 
+def applied_desired(machine: Machine) -> tuple[Path, DesiredState] | None:
+    """The desired state the agent last applied (from the store, no network), for what
+    must obey it between passes — an operator's stop obeys its update gates; None on a
+    car with no agent or before its first applied pass."""
+    from reconciler.documents import load_agent
+
+    if not machine.layout.agent_config.exists():
+        return None
+    config = load_agent(machine.layout.agent_config)
+    revision = read_status(machine).applied_revision
+    if revision is None:
+        return None
+    return _desired(machine, config, vehicle_id(machine, config), revision)
+
+
 def desired_at(machine: Machine, url: str, revision: str,
                name: str) -> tuple[Path, DesiredState] | None:
     """The desired state in the file `name` of the source at `revision` (None without it),

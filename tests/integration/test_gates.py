@@ -21,6 +21,7 @@ import pytest
 from tests.canlog import SPEED_ID, CsvWriter, between, recording, speed_kmh, write_csv
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, desired
+from tests.integration.conftest import fleet_state
 from tests.socketcand import SocketcandServer
 
 LINK = "etc/libpanda.d/currentCan.csv"
@@ -299,3 +300,28 @@ def test_health_by_can_an_app_that_stops_talking_is_rolled_back(
             assert status["app"]["params"]["MODE"] == "talk" and status["app"]["running"]
     finally:
         shutdown(Layout(lpam.root))
+
+
+def test_on_a_car_that_follows_git_stop_obeys_the_gates_the_agent_applied(
+    car: Lpam, fleet: RepoBuilder,
+) -> None:
+    """There is no desired-state file on such a car: the gates are those of the revision
+    the agent last applied, read from its store."""
+    lock = car.root / "run/lpam/locks/recording.lock"
+    fleet.commit("alpha, gated", {"desired-state.yaml": fleet_state("alpha") + (
+        "gates:\n  on_no_signal: allow\n  locks: [/run/lpam/locks/recording.lock]\n")})
+    fleet.push()
+    assert car("sync").returncode == 0
+    assert not (car.root / "etc/lpam/desired-state.yaml").exists()
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    proc = subprocess.Popen(["flock", str(lock), "-c", "echo held; exec sleep 60"],
+                            stdout=subprocess.PIPE, start_new_session=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline() == b"held\n"
+        stop = car("stop")
+        assert stop.returncode == 75 and "recording.lock" in stop.stderr, stop.stderr
+        assert car.status()["app"]["running"] is True
+    finally:
+        with_group(proc, signal.SIGKILL)
+        proc.wait(timeout=10)
+    assert car("stop").returncode == 0
