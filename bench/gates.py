@@ -30,7 +30,7 @@ from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
 
-from reconciler.adapters.can.sources import open_source
+from reconciler.adapters.can.sources import FrameSource, open_source
 from reconciler.vehicle.signal import RAV4_SPEED, decode
 from tests.canlog import CsvWriter, between, recording, write_candump, write_csv
 from tests.gitserver import GitDaemon, RepoBuilder, git_env
@@ -38,20 +38,20 @@ from tests.integration.apps import apps_repo, desired
 from tests.socketcand import SocketcandServer
 
 
-def read_all(open_it: Callable[[], object], total: int) -> tuple[float, int]:
+def read_all(open_it: Callable[[], FrameSource], total: int) -> tuple[float, int]:
     """Seconds to read `total` frames (or all there are) and decode the speed frames."""
     source = open_it()
     began = time.perf_counter()
     decoded = 0
-    backlog = source.backlog(1e9)  # type: ignore[attr-defined]
-    frames = iter(backlog) if backlog else source.frames(time.monotonic() + 120)  # type: ignore[attr-defined]
+    backlog = source.backlog(1e9)
+    frames = iter(backlog) if backlog else source.frames(time.monotonic() + 120)
     for seen, message in enumerate(frames, 1):
         if message.arbitration_id == RAV4_SPEED.frame_id:
             decoded += decode(RAV4_SPEED, bytes(message.data)) is not None
         if seen >= total:
             break
     elapsed = time.perf_counter() - began
-    source.close()  # type: ignore[attr-defined]
+    source.close()
     return elapsed, decoded
 
 

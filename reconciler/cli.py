@@ -458,10 +458,11 @@ def _desired_if_any(args: argparse.Namespace, layout: Layout,
         if path.exists():
             return path, load_desired(path)
         return None if args.file else applied_desired(machine)
-    except LpamError as exc:
-        raise LpamError(f"cannot read the update gates: {exc.message}",
-                        hint="fix the desired state, or pass --force to ignore the gates "
-                        "(the vehicle may be moving)") from None
+    except LpamError as exc:  # raised as it is, so a document's file:line:col stays
+        exc.hint = ((exc.hint + "; ") if exc.hint else "") + (
+            "the update gates cannot be known: fix it, or pass --force to ignore them "
+            "(the vehicle may be moving)")
+        raise
 
 
 def cmd_gates(args: argparse.Namespace, layout: Layout) -> int:

@@ -161,6 +161,10 @@ class Layout:
         """What the agent's passes found and did (schemas/agent.py `AgentStatus`)."""
         return self.var / "status.json"
 
+    def under(self, path: str) -> Path:
+        """A machine path as documents write it (`/run/lpam/locks/x.lock`), under --root."""
+        return self.root / path.lstrip("/")
+
     @property
     def venvs(self) -> Path:
         """Virtual environments of apps' pip requirements, one per set of requirements."""

@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Self
+from typing import Self, TextIO
 
 import can
 import pytest
@@ -52,10 +52,13 @@ def read_log(path: Path) -> list[can.Message]:
 
 @functools.cache
 def _load(path: Path) -> tuple[can.Message, ...]:
-    if path.suffix == ".gz":
-        with gzip.open(path, "rt") as text:
-            return tuple(can.CanutilsLogReader(text))
-    return tuple(can.CanutilsLogReader(path))
+    with _text(path) as text:
+        return tuple(can.CanutilsLogReader(text))
+
+
+def _text(path: Path) -> TextIO:
+    """The log as text, gzip-compressed or not."""
+    return gzip.open(path, "rt") if path.suffix == ".gz" else path.open()
 
 
 def recording_text() -> str:
@@ -63,10 +66,8 @@ def recording_text() -> str:
     path = recording_path()
     if path is None:
         pytest.skip(f"the recorded drive {RECORDING} is not available")
-    if path.suffix == ".gz":
-        with gzip.open(path, "rt") as text:
-            return text.read()
-    return path.read_text()
+    with _text(path) as text:
+        return text.read()
 
 
 def recording() -> list[can.Message]:

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.errors import ConfigError, Deferred, VehicleSourceError
+from reconciler.layout import Layout
 from reconciler.vehicle.motion import Motion, Tracker
 from reconciler.vehicle.policy import GateState, all_open, decide
 from schemas.vehicle import GatesSpec, VehicleSpec
@@ -47,12 +48,13 @@ def local_minute() -> int:
 
 @dataclass
 class VehicleGate:
-    """The gates of one desired state (`gates:` and `vehicle:`), paths taken under `root`;
-    relative source and DBC paths are relative to the desired state's folder."""
+    """The gates of one desired state (`gates:` and `vehicle:`), paths taken under
+    `layout`'s root; relative source and DBC paths are relative to the desired state's
+    folder."""
 
     gates: GatesSpec
     vehicle: VehicleSpec
-    root: Path
+    layout: Layout
     base_dir: Path
     clock: Callable[[], float] = time.time  # the sources' clock: epoch seconds
     monotonic: Callable[[], float] = time.monotonic
@@ -95,8 +97,7 @@ class VehicleGate:
                 watch.listen(min(deadline, now + LISTEN_SLICE))
 
     def _lock_specs(self) -> list[tuple[Path, bool]]:
-        return [(self.root / lock.path.lstrip("/"), lock.persistent)
-                for lock in self.gates.locks]
+        return [(self.layout.under(lock.path), lock.persistent) for lock in self.gates.locks]
 
     @contextmanager
     def _watch(self) -> Iterator[_Watch]:
@@ -123,7 +124,7 @@ class _Watch:
         self.description = _describe(vehicle)
         try:
             self._signal = vehicle.speed.definition(gate.base_dir)
-            self._source = open_vehicle_source(gate.vehicle, root=gate.root,
+            self._source = open_vehicle_source(gate.vehicle, layout=gate.layout,
                                                base_dir=gate.base_dir,
                                                ids=[self._signal.frame_id])
             self.description = self._source.description
@@ -209,7 +210,7 @@ class VehicleListener:
     gates: a recording's frames since the app started, then new ones as they come."""
 
     vehicle: VehicleSpec
-    root: Path
+    layout: Layout
     base_dir: Path
     monotonic: Callable[[], float] = time.monotonic
 
@@ -217,7 +218,7 @@ class VehicleListener:
         wanted, seen = set(ids), set[int]()
         deadline = self.monotonic() + within
         try:
-            source = open_vehicle_source(self.vehicle, root=self.root, base_dir=self.base_dir,
+            source = open_vehicle_source(self.vehicle, layout=self.layout, base_dir=self.base_dir,
                                          ids=list(wanted))
         except VehicleSourceError:
             return seen  # nothing can be heard: the check fails, naming the ids
@@ -233,16 +234,16 @@ class VehicleListener:
         return seen
 
 
-def open_vehicle_source(vehicle: VehicleSpec, *, root: Path, base_dir: Path,
+def open_vehicle_source(vehicle: VehicleSpec, *, layout: Layout, base_dir: Path,
                         ids: Sequence[int] = ()) -> FrameSource:
-    """The frames `vehicle.source` names, paths taken under `root` (relative ones from the
+    """The frames `vehicle.source` names, paths taken under --root (relative ones from the
     desired state's folder). On a bus, only `ids` are asked for (python-can's `can_filters`,
     in the kernel for socketcan): a RAV4 bus carries thousands of frames a second, and
     lpam reads it beside the experiment."""
     from reconciler.adapters.can.sources import open_source
 
     def path(text: str) -> Path:
-        return root / text.lstrip("/") if text.startswith("/") else base_dir / text
+        return layout.under(text) if text.startswith("/") else base_dir / text
 
     src = vehicle.source
     if src.bus is not None:

@@ -83,7 +83,7 @@ def workspace_target(desired: DesiredState, root: Path,
     where the field's scripts look."""
     user = desired.ros.user or default_user or getpass.getuser()
     if desired.ros.workspace is not None:
-        path = root / desired.ros.workspace.lstrip("/")
+        path = Layout(root).under(desired.ros.workspace)
     else:
         path = Layout(root).home(user) / "catkin_ws"
     return WorkspaceTarget(path=str(path), user=user)

@@ -113,14 +113,14 @@ class Machine:
             return None
         from reconciler.adapters.gate import VehicleGate
 
-        return VehicleGate(desired.gates, desired.vehicle, root=self.layout.root,
+        return VehicleGate(desired.gates, desired.vehicle, layout=self.layout,
                            base_dir=base_dir)
 
     def listener_for(self, desired: DesiredState, base_dir: Path) -> Listener:
         """The vehicle's bus as `desired` names it, for health checks by CAN."""
         from reconciler.adapters.gate import VehicleListener
 
-        return VehicleListener(desired.vehicle, root=self.layout.root, base_dir=base_dir)
+        return VehicleListener(desired.vehicle, layout=self.layout, base_dir=base_dir)
 
     def store(self) -> GitStore:
         from reconciler.adapters.git import GitStore

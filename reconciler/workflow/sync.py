@@ -138,7 +138,7 @@ def _trusted(machine: Machine, config: AgentConfig, revision: str) -> str:
     from reconciler.adapters.signatures import verify
 
     assert config.trust is not None
-    allowed = machine.layout.root / config.trust.allowed_signers.lstrip("/")
+    allowed = machine.layout.under(config.trust.allowed_signers)
     signature, payload = machine.store().signature(SOURCE_KEY, revision)
     return verify(signature, payload, allowed, what=f"commit {revision[:12]}")
 
@@ -181,7 +181,7 @@ def vehicle_id(machine: Machine, config: AgentConfig) -> str:
     if config.vehicle_file is not None:
         from reconciler.reading import read_bounded
 
-        path = machine.layout.root / config.vehicle_file.lstrip("/")
+        path = machine.layout.under(config.vehicle_file)
         try:
             text = read_bounded(path, limit=256).decode("utf-8", "replace").strip()
         except FileNotFoundError:
