@@ -96,7 +96,11 @@ def test_a_socketcand_process_feeds_the_bus_source_until_it_is_stopped(
         after = collect(source, 0.5)
         assert time.monotonic() - began < 0.8
         assert time.thread_time() - cpu < 0.1  # python-can alone would spin here
-        assert len(after) < 40
+        # only frames already in flight when it stopped (how many depends on the machine's
+        # load): a piece of the drive, then silence
+        later = [key(m) for m in between(recording(), 330, 400)]
+        assert any(later[i:i + len(after)] == [key(m) for m in after]
+                   for i in range(len(later)))
         assert collect(source, 0.2) == []
     finally:
         source.close()
