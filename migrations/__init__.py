@@ -19,18 +19,24 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from migrations import desired_state_v0_to_v1, state_record_v1_to_v2, state_record_v2_to_v3
+from migrations import (
+    desired_state_v0_to_v1,
+    state_record_v1_to_v2,
+    state_record_v2_to_v3,
+    state_record_v3_to_v4,
+)
 from migrations.step import MigrationError, Step
 from reconciler.errors import ConfigError, VersionError
 
-CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 3, "plan": 1,
+CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 4, "plan": 1,
                            "agent-config": 1, "agent-status": 1}
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
 STEPS: dict[str, dict[str, tuple[str, Step]]] = {
     "desired-state": {"0.0": ("1", desired_state_v0_to_v1.upgrade)},
     "state-record": {"1": ("2", state_record_v1_to_v2.upgrade),
-                     "2": ("3", state_record_v2_to_v3.upgrade)},
+                     "2": ("3", state_record_v2_to_v3.upgrade),
+                     "3": ("4", state_record_v3_to_v4.upgrade)},
     "plan": {},
     "agent-config": {},
     "agent-status": {},

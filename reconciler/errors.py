@@ -122,6 +122,14 @@ class StepError(LpamError):
     """A step of an apply failed; the journal says how far the apply got."""
 
 
+class StateWriteError(ConfigError):
+    """The state record could not be written (a full disk, a read-only filesystem). The
+    step whose intent it was did no work, so the record on disk is still exact;
+    `explained` once the message says what it shows (execution/recovery.py)."""
+
+    explained = False
+
+
 class ServiceError(LpamError):
     """The service manager (systemd, supervisord) refused or failed an operation on a unit,
     or could not be reached or started."""

@@ -92,9 +92,7 @@ def _app_row(
         folder = app.path
     app = with_folder_files(app, _folder_files(store, key, commit, folder))
     runs, verified = _running(installed, live) if installed is not None else (False, None)
-    status: str | None = None if installed is None else installed.status
-    if installed is not None and installed.held:
-        status = f"{status} (stopped by operator)"
+    status = None if installed is None else _status(installed, runs)
     service = installed.service if installed is not None and installed.service else None
     return Row(
         repository=common["repository"], ref=common["ref"], commit=common["commit"],
@@ -102,6 +100,18 @@ def _app_row(
         installed=installed is not None, running=runs, status=status,
         description=app.description, verified=verified,
     )
+
+
+def _status(installed: AppRecord, runs: bool) -> str:
+    """The lifecycle as a person needs it: what lpam did, and what is still owed."""
+    status = installed.status
+    if installed.held:
+        if runs or status != "installed":
+            return f"{status} (an operator's stop did not finish: the next apply stops it)"
+        return f"{status} (stopped by operator)"
+    if not installed.good:
+        return f"{status} (health not proven yet: the next apply checks it)"
+    return status
 
 
 def _note(common: dict[str, str], description: str) -> Row:
@@ -188,9 +198,11 @@ def as_json(layout: Layout, *, store: Objects | None = None,
             "name": app.name, "repository": app.repository, "commit": app.commit,
             "generation": app.generation, "params": app.params, "running": runs,
             "verified": verified, "status": app.status, "held": app.held,
+            "good": app.good,
             "unit": None if live is None else {
                 "name": live.name, "known": live.known, "active": live.active,
-                "sub": live.sub, "restarts": live.restarts, "pid": live.pid},
+                "sub": live.sub, "restarts": live.restarts, "pid": live.pid,
+                "supervised": live.supervised},
             "command": app.command, "launch": app.launch, "user": app.user,
         },
         "service_manager": manager,
@@ -205,6 +217,7 @@ def as_json(layout: Layout, *, store: Objects | None = None,
              "pending": s.pending}
             for s in record.strays
         ],
+        "cutover": None if record.cutover is None else record.cutover.model_dump(mode="json"),
         "serial": record.serial,
         "lineage": record.lineage,
         "agent": _agent(layout),
@@ -279,7 +292,25 @@ def _footer(record: StateRecord, live: UnitState | None, manager: str | None) ->
     if last is not None:
         why = f": {last.reason}" if last.reason else ""
         lines.append(f"Last apply: {last.result} at {last.time}{_printable(why)}")
-    return lines
+    return lines + _cutover_footer(record)
+
+
+def _cutover_footer(record: StateRecord) -> list[str]:
+    """An apply a fault cut off mid-cutover, and a rollback it had begun: what the next
+    apply owes the car."""
+    cutover = record.cutover
+    if cutover is None:
+        return []
+    back = cutover.previous.name if cutover.previous is not None else "no app"
+    rollback = cutover.rollback
+    if rollback is not None:
+        failed = rollback.failed.name if rollback.failed is not None else "the new app"
+        return [_printable(
+            f"Rollback cut off: {failed} failed ({rollback.reason}) at {rollback.time}, and "
+            f"the rollback to {back} did not finish: the next `lpam apply` finishes it.")]
+    return [_printable(
+        f"Apply cut off mid-cutover (began {cutover.began}): the next `lpam apply` goes on "
+        f"from here, and returns to {back} if the new app fails.")]
 
 
 def _agent_footer(layout: Layout) -> list[str]:

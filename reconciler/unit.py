@@ -58,6 +58,7 @@ class UnitState:
     sub: str = ""
     restarts: int = 0
     pid: int | None = None
+    supervised: bool = True  # False: its processes run, but the manager that ran them died
 
     @property
     def running(self) -> bool:
@@ -66,6 +67,9 @@ class UnitState:
     def describe(self) -> str:
         if not self.known:
             return f"unit {self.name} unknown to this service manager"
+        if not self.supervised:
+            return (f"unit {self.name} still runs (pid {self.pid}) but its service manager "
+                    "died: nobody restarts it or keeps its output")
         detail = f" ({self.sub})" if self.sub and self.sub != self.active else ""
         return f"unit {self.name} {self.active}{detail}"
 

@@ -22,7 +22,7 @@ from schemas.record import StateRecord
 DOCUMENTS: dict[str, type[BaseModel]] = {
     "desired-state.v1.schema.json": DesiredState,
     "app-catalog.schema.json": RawCatalog,
-    "state-record.v3.schema.json": StateRecord,
+    "state-record.v4.schema.json": StateRecord,
     "plan.v1.schema.json": Plan,
     "agent.v1.schema.json": AgentConfig,
     "agent-status.v1.schema.json": AgentStatus,

@@ -13,7 +13,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-CURRENT_VERSION = 3
+CURRENT_VERSION = 4
 
 AppStatus = Literal["installing", "installed", "starting", "running", "stopping", "uninstalling"]
 """Where the installed app's lifecycle stands. The -ing values are written *before* the
@@ -61,6 +61,11 @@ class AppRecord(BaseModel):
     held: bool = Field(
         default=False, description="stopped by an operator (`lpam stop`): not started again "
         "until `lpam start` or a change of the desired state")
+    good: bool = Field(
+        default=True, description="this generation, with these parameters, passed its "
+        "health check to its end since it was installed or reconfigured (or was a good "
+        "generation brought back): until then an apply verifies it again, and it is no "
+        "rollback target")
 
     @property
     def running(self) -> bool:
@@ -151,10 +156,36 @@ class Hold(BaseModel):
         "crash is finished by the next plan and apply")
 
 
+class Rollback(BaseModel):
+    """An automatic rollback once begun: the app that failed and why. A rollback that a
+    fault cut off is finished by the next run, and the failure stays recorded."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    failed: AppRecord | None = Field(description="the app whose install, start or health "
+                                     "check failed (None: it never got installed)")
+    reason: str = Field(description="what failed, as the apply reported it")
+    health: bool = Field(default=False, description="it was a failed health check (exit 3)")
+    time: str
+
+
+class Cutover(BaseModel):
+    """The cutover of an apply, from its first step until the apply ends (applied, rolled
+    back or failed): the good app it returns to if the new one fails — kept across faults,
+    so an app that never proved itself is never taken for the one to return to."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    previous: AppRecord | None = Field(
+        description="the good app that ran before (None: none; a failure removes the new one)")
+    began: str
+    rollback: Rollback | None = None
+
+
 class StateRecord(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    version: Literal[3] = 3
+    version: Literal[4] = 4
     lineage: str | None = None
     serial: int = 0
     repositories: list[RepositoryRecord] = Field(default_factory=list)
@@ -163,6 +194,7 @@ class StateRecord(BaseModel):
     last_apply: LastApply | None = None
     history: list[HistoryEntry] = Field(default_factory=list)
     hold: Hold | None = None
+    cutover: Cutover | None = None
 
     def repository(self, key: str) -> RepositoryRecord | None:
         return next((r for r in self.repositories if r.key == key), None)

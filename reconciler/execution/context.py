@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
 
-from reconciler.errors import StepError
+from reconciler.errors import StateWriteError, StepError
 from reconciler.execution.ports import (
     DependencyPorts,
     Gate,
@@ -50,6 +50,7 @@ class Context:
     gate: Gate | None = None  # None: the cutover is not gated (no `gates:`, or --force)
     gate_wait: float = 0.0  # seconds the cutover may wait for closed gates to open
     listener: Listener | None = None  # the vehicle's bus, for `health.can`
+    command: str = "lpam apply"  # what a user runs to resume this one (said in errors)
 
     def dependencies(self) -> DependencyPorts:
         if self.deps is None:  # a caller that plans dependencies must give their ports
@@ -58,7 +59,14 @@ class Context:
         return self.deps
 
     def save(self, record: StateRecord) -> None:
-        self.record = write_record(self.layout, record)
+        """Write `record` (a step's intent before its work, its outcome after). Failing,
+        nothing is done that it would have recorded: StateWriteError."""
+        try:
+            self.record = write_record(self.layout, record)
+        except OSError as exc:
+            raise StateWriteError(
+                f"cannot write the state record: {exc.strerror or exc}",
+                path=self.layout.state_record) from None
 
     def save_app(self, app: AppRecord | None) -> None:
         self.save(self.record.model_copy(update={"app": app}))

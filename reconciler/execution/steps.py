@@ -356,7 +356,7 @@ def install(step: Step, ctx: Context) -> None:
         )
     if not ctx.layout.generation_dir(gen.app, gen.generation).is_dir():
         raise StepError(f"{gen.app}: generation {gen.generation} was not staged")
-    app = _record(gen, _optional(step, "user"))
+    app = _record(gen, _optional(step, "user")).model_copy(update={"good": _good(step)})
     appdir.set_current(ctx.layout, gen.folder)
     if gen.ros_build is not None and gen.ros_workspace is not None:
         # the field's scripts look for the sources in the workspace's own src/
@@ -370,16 +370,25 @@ def configure(step: Step, ctx: Context) -> None:
     """New parameters (or user) for the installed generation; a unit lpam wrote is
     rewritten so that its next start has them."""
     app = _installed(step, ctx).model_copy(
-        update={"params": _params(step), "user": _optional(step, "user")})
+        update={"params": _params(step), "user": _optional(step, "user"),
+                "good": _good(step)})
     if app.scriptless and app.status not in ("installing", "uninstalling"):
         gen = _meta(ctx, app)
         ctx.services.install(unit_for(ctx, app, _place(ctx, gen), runtime(ctx, gen)))
     ctx.save_app(app)
 
 
+def _good(step: Step) -> bool:
+    """Whether the app counts as good once the step ends (planning/lifecycle.py decides:
+    a generation proved good before, or an apply with nothing to check)."""
+    return step.args.get("good") == "yes"
+
+
 def start(step: Step, ctx: Context) -> None:
     app = _installed(step, ctx)
-    _lifecycle(ctx, app.model_copy(update={"held": False}), "start", "starting", "running")
+    good = app.good or _good(step)
+    _lifecycle(ctx, app.model_copy(update={"held": False, "good": good}), "start", "starting",
+               "running")
 
 
 def verify(step: Step, ctx: Context) -> None:
@@ -404,6 +413,7 @@ def verify(step: Step, ctx: Context) -> None:
                 hint="fix the app (or its health settings) and apply again",
                 details=log_tail(ctx, app.service))
     _heard_on_bus(step, ctx, app, began)
+    _proved(ctx, app)
 
 
 def _heard_on_bus(step: Step, ctx: Context, app: AppRecord, began: float) -> None:
@@ -425,6 +435,14 @@ def _heard_on_bus(step: Step, ctx: Context, app: AppRecord, began: float) -> Non
             f"bus within {within:g} s of starting",
             hint="check that the app talks to the bus (and the vehicle source lpam reads), "
             "or its health.can settings", details=log_tail(ctx, app.service))
+
+
+def _proved(ctx: Context, app: AppRecord) -> None:
+    """The health check ran to its end and passed: from now on the app is good (a
+    rollback target, an apply that is `applied`). Nothing before this point may say so."""
+    current = ctx.record.app
+    if current is not None and (current.name, current.generation) == (app.name, app.generation):
+        ctx.save_app(current.model_copy(update={"good": True}))
 
 
 def prune(ctx: Context, *, keep: int = 3) -> None:

@@ -225,19 +225,33 @@ def _same_generation(
         what = f"parameters changed ({', '.join(changed)})" if changed else "user changed"
         return update(f"{what}: restarted with the new values; no install script runs, no "
                       "new generation")
-    if rec.held and rec.status in ("installed", "running"):
-        held = (f"{t.name} was stopped by an operator (`lpam stop`) and stays stopped until "
-                "`lpam start` or a change of the desired state")
-        return Change(address="app", action=Action.NOOP, before=before, after=after,
-                      reason=held, warnings=[held])
+    runs = live is not None and live.running
+    if rec.held:
+        if rec.status == "installed" and not runs:
+            held = (f"{t.name} was stopped by an operator (`lpam stop`) and stays stopped "
+                    "until `lpam start` or a change of the desired state")
+            return Change(address="app", action=Action.NOOP, before=before, after=after,
+                          reason=held, warnings=[held])
+        if rec.status in ("installing", "uninstalling"):
+            return update(f"{_CUT_OFF[rec.status].split(':')[0]}: installed again; it stays "
+                          "stopped, as an operator asked (`lpam stop`)")
+        return update("was stopped by an operator (`lpam stop`), but that stop did not "
+                      "finish and it may still run: stopped")
+    if live is not None and live.running and not live.supervised:
+        return update(f"runs without its service manager ({live.describe()}): stopped, then "
+                      "started again under a new one (never a second copy beside it)")
     if rec.status == "running" and live is not None and live.known and not live.running:
         return update(f"is not running ({live.describe()}): start")
     if rec.status == "installed" and live is not None and live.running:
         return Change(address="app", action=Action.NOOP, before=before, after=after,
                       reason=f"{t.name} runs ({live.describe()}), though lpam did not "
                       "start it", warnings=[f"{t.name} was started outside lpam"])
+    unproven = ("; it has not passed its health check since it was installed (the check "
+                "was cut off): checked again for a whole settle window" if not rec.good else "")
     if rec.status == "running":
         moved = "" if t.commit == rec.commit else f"; repository now at {short(t.commit)}"
+        if unproven:
+            return update(f"is running{unproven}")
         return Change(address="app", action=Action.NOOP, before=before, after=after,
                       reason=f"{t.name} installed and running, app folder unchanged{moved}")
-    return update(_CUT_OFF[rec.status])
+    return update(_CUT_OFF[rec.status] + unproven)

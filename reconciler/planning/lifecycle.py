@@ -18,6 +18,12 @@ Same generation wanted as recorded, by status:
 | stopping      | stop, start      | finish the stop before starting again                 |
 | uninstalling  | install, start   | uninstall.sh failed: install.sh puts the app back     |
 
+An app an operator stopped (`held`) is never started by these rules; one that may still
+run (its stop was cut off, or it runs behind lpam's back) is stopped. An app that has not
+proved itself (`good` is false: its health check was cut off or never ran) is checked
+again, for a whole settle window, after whatever finishes it: a generation becomes good
+only once a verification ran to its end.
+
 Otherwise the recorded app is stopped (if it may be active) and uninstalled, then the new
 generation is staged (during preparation), installed and started.
 """
@@ -76,12 +82,7 @@ def app_steps(
     if new is not None and old is not None and same_generation(old, new, generations):
         target = f"{old.name}@{old.generation}"
         if keeps(old, new, generations):
-            kinds = _SAME_GENERATION[old.status]
-            if not start or (old.held and old.status == "installed"):
-                kinds = tuple(k for k in kinds if k is not StepKind.START)
-                if old.status in ("starting", "running"):
-                    kinds = (StepKind.STOP,)
-            return steps + [step(k, Phase.CUTOVER, target, **_recorded(old)) for k in kinds]
+            return steps + _resume(old, new, target, start=start, verify=verify)
         return steps + _reconfigure(old, new, target, start=start, verify=verify)
     gen = (new.generation or UNKNOWN) if new is not None else None
     if new is not None and gen is not None and GenerationKey.of(new.name, gen) not in generations:
@@ -96,9 +97,36 @@ def app_steps(
         target = f"{new.name}@{gen}"
         steps.append(step(StepKind.INSTALL, Phase.CUTOVER, target, **_wanted(new, gen)))
         if start:
-            steps.append(step(StepKind.START, Phase.CUTOVER, target, **_wanted(new, gen)))
-            if verify and _checks(new.health):
-                steps.append(step(StepKind.VERIFY, Phase.CUTOVER, target, **_wanted(new, gen)))
+            steps += _started(new, gen, target, verify=verify)
+    return steps
+
+
+def _started(new: AppTarget, gen: str, target: str, *, verify: bool) -> list[Step]:
+    """START, then VERIFY when there is something to check. The app is good once started
+    only when it proved good before or an apply has nothing to check; else its verify,
+    run to its end, makes it good."""
+    checks = verify and _checks(new.health)
+    good = new.proven or (verify and not checks)
+    steps = [step(StepKind.START, Phase.CUTOVER, target, **_wanted(new, gen, good=good))]
+    if checks:
+        steps.append(step(StepKind.VERIFY, Phase.CUTOVER, target, **_wanted(new, gen)))
+    return steps
+
+
+def _resume(old: AppRecord, new: AppTarget, target: str, *, start: bool,
+            verify: bool) -> list[Step]:
+    """The installed generation is the one wanted: finish what a fault cut off (table
+    above), never start an app an operator stopped (stop it if it may run), and check an
+    app that has not proved itself for a whole settle window."""
+    kinds = _SAME_GENERATION[old.status]
+    if not start or old.held:
+        kinds = tuple(k for k in kinds if k is not StepKind.START)
+        if old.status in ("starting", "running"):
+            kinds = (StepKind.STOP,)
+    steps = [step(k, Phase.CUTOVER, target, **_recorded(old)) for k in kinds]
+    if start and verify and not old.held and not old.good:
+        steps.append(step(StepKind.VERIFY, Phase.CUTOVER, target,
+                          **_wanted(new, old.generation)))
     return steps
 
 
@@ -106,7 +134,8 @@ def _reconfigure(old: AppRecord, new: AppTarget, target: str, *, start: bool,
                  verify: bool) -> list[Step]:
     """New parameters (or user) for the installed generation: stop it if it may run, record
     them (a unit lpam wrote is rewritten), start it again. No install script runs and
-    nothing is fetched; a script that was cut off is finished first."""
+    nothing is fetched; a script that was cut off is finished first. With new parameters
+    the app has to prove itself again."""
     wanted = _wanted(new, old.generation)
     steps = []
     if old.status in ACTIVE:
@@ -115,9 +144,7 @@ def _reconfigure(old: AppRecord, new: AppTarget, target: str, *, start: bool,
     if old.status in ("installing", "uninstalling"):
         steps.append(step(StepKind.INSTALL, Phase.CUTOVER, target, **wanted))
     if start:
-        steps.append(step(StepKind.START, Phase.CUTOVER, target, **wanted))
-        if verify and _checks(new.health):
-            steps.append(step(StepKind.VERIFY, Phase.CUTOVER, target, **wanted))
+        steps += _started(new, old.generation, target, verify=verify)
     return steps
 
 
@@ -152,12 +179,15 @@ def _recorded(app: AppRecord) -> dict[str, ArgValue]:
     return _wanted(target_of(app), app.generation)
 
 
-def _wanted(new: AppTarget, gen: str) -> dict[str, ArgValue]:
+def _wanted(new: AppTarget, gen: str, *, good: bool | None = None) -> dict[str, ArgValue]:
+    """The app as step arguments; `good`: whether it counts as good once the step ends
+    (default: if it proved good before)."""
+    good = new.proven if good is None else good
     args: dict[str, ArgValue] = {
         "app": new.name, "generation": gen, "repository": new.repository,
         "commit": new.commit, "path": new.path, "tree": new.tree, "params": dict(new.params),
         "service": new.service, "command": _list(new.command), "launch": new.launch,
-        "user": new.user,
+        "user": new.user, "good": "yes" if good else "no",
     }
     health = new.health
     args["health"] = {"settle_seconds": f"{health.settle_seconds:g}",
@@ -184,7 +214,8 @@ def target_of(app: AppRecord) -> AppTarget:
                      path=app.path, tree=app.tree, params=dict(app.params),
                      service=app.service,
                      command=tuple(app.command) if app.command is not None else None,
-                     launch=app.launch, user=app.user, health=HealthTarget(settle_seconds=0))
+                     launch=app.launch, user=app.user, health=HealthTarget(settle_seconds=0),
+                     proven=app.good)
 
 
 def refreshed(record: StateRecord, live: UnitState | None,
@@ -199,7 +230,11 @@ def refreshed(record: StateRecord, live: UnitState | None,
     app = record.app
     if app is None or live is None or not live.known:
         return record
-    if app.status == "running" and not live.running:
+    if live.running and not live.supervised and app.status in ("running", "installed"):
+        # its manager died and left it running: stopped (the manager's successor finds
+        # and ends what it ran), then started again under it unless an operator stopped it
+        status = "stopping"
+    elif app.status == "running" and not live.running:
         status = "installed"
     elif app.status == "installed" and live.running:
         status = "running"  # started behind lpam's back, or a stop that did not stop it
@@ -233,3 +268,35 @@ def strays_refreshed(record: StateRecord, live: dict[str, UnitState]) -> StateRe
               if s.name in live and live[s.name].known and not live[s.name].running else s
               for s in record.strays]
     return record.model_copy(update={"strays": strays}) if strays != record.strays else record
+
+
+_NEXT = {
+    "running": "runs",
+    "installed": "is installed, not running: the next apply starts it",
+    "starting": "was being started: the next apply starts it again",
+    "installing": "was being installed: the next apply installs it again and starts it",
+    "stopping": "was being stopped: the next apply stops it, then goes on",
+    "uninstalling": "was being uninstalled: the next apply installs it again (its scripts "
+    "put it back) and goes on",
+}
+
+
+def resume_text(record: StateRecord) -> str:
+    """What the record shows and what the next apply of the same desired state does from
+    it, in a sentence or two: said when lpam had to stop where it stood."""
+    app, cutover = record.app, record.cutover
+    back = None if cutover is None else cutover.previous
+    back_to = f"it returns to {back.name}" if back is not None else "it removes it again"
+    if app is None:
+        text = "The record shows no app installed: the next apply installs the desired one."
+    else:
+        text = f"The record shows {app.name} ({app.generation}): it {_NEXT[app.status]}."
+        if app.held:
+            text += " An operator stopped it: it stays stopped."
+        elif not app.good:
+            text += (" It has not passed its health check yet: the next apply checks it for "
+                     f"a whole settle window, and if it fails, {back_to}.")
+    if cutover is not None and cutover.rollback is not None:
+        target = back.name if back is not None else "no app"
+        text += f" A rollback to {target} was under way: the next apply finishes it first."
+    return text

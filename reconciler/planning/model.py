@@ -145,6 +145,7 @@ class AppTarget:
     user: str | None = None
     health: HealthTarget = field(default_factory=HealthTarget)
     deps: Deps = field(default_factory=Deps)
+    proven: bool = False  # it proved good before (what a rollback returns to): no re-check
 
     @property
     def generation(self) -> str | None:

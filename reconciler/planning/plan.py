@@ -15,7 +15,8 @@ from reconciler.errors import PlanError, StalePlanError
 from reconciler.planning.diff import diff
 from reconciler.planning.graph import steps_for
 from reconciler.planning.model import UNKNOWN, Observed, Targets
-from schemas.plan import Action, Change, Plan
+from schemas.plan import Action, Change, Plan, Step
+from schemas.record import StateRecord
 
 
 def make_plan(
@@ -46,6 +47,16 @@ def make_plan(
         summary=summary,
         offline=offline,
     )
+    return plan.model_copy(update={"fingerprint": fingerprint(plan)})
+
+
+def sealed(record: StateRecord, changes: list[Change], steps: list[Step], *, now: datetime,
+           lpam_version: str, summary: str) -> Plan:
+    """A plan of given steps against `record` (an operator's command, a rollback that is
+    finished), sealed like any other."""
+    plan = Plan(lpam_version=lpam_version, created_at=now.isoformat(timespec="seconds"),
+                lineage=record.lineage, serial=record.serial, changes=changes, steps=steps,
+                summary=summary)
     return plan.model_copy(update={"fingerprint": fingerprint(plan)})
 
 

@@ -65,7 +65,7 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
             raise LpamError(f"with no network, these are not known: {', '.join(missing)}",
                             hint="fetch them first (`lpam sync --fetch-only` where there is "
                             "network, or a bundle); nothing was changed")
-        if not made.steps:
+        if not made.steps and not finishes_rollback(made):
             return Applied(0, _standing(machine))
         if not confirm(made):
             return Applied(0, _standing(machine), cancelled=True)
@@ -73,6 +73,12 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
         return execute_plan(machine, store, made, lock, options=options, report=report,
                             gate=machine.gate_for(desired, base),
                             listener=machine.listener_for(desired, base))
+
+
+def finishes_rollback(made: Plan) -> bool:
+    """The plan finishes a rollback a fault cut off: run even with no step left, so that
+    the failure is recorded (workflow/planning.py)."""
+    return any(c.address == "rollback" for c in made.changes)
 
 
 def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOptions,

@@ -44,8 +44,12 @@ def operate(ctx: Context, action: str, *, progress: Progress) -> str:
         raise LpamError(f"no app is installed: nothing to {action}",
                         hint="install one with `lpam apply`")
     with gates_passed(ctx, progress):
+        # The operator's wish is written first, so that a fault cannot undo it: the next
+        # run carries out a stop (or a start) that was asked for and cut off.
         if action == "stop":
             ctx.save_app(app.model_copy(update={"held": True}))
+        elif app.held:
+            ctx.save_app(app.model_copy(update={"held": False}))
         steps = operator_steps(ctx.record, action, generations.present(ctx.layout))
         if steps:
             execute(_plan(ctx, steps, f"{action} {app.name}", ctx.clock()), ctx,

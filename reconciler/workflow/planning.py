@@ -67,6 +67,8 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     layout = machine.layout
     store = machine.store()
     record = read_record(layout)
+    if record.cutover is not None and record.cutover.rollback is not None:
+        return store, _finishing_plan(machine, record, report)
     hold = hold_reason(record, desired)
     if hold is not None:  # a rollback holds: nothing to resolve, no network needed
         return store, _held_plan(machine, store, record, hold, report)
@@ -85,13 +87,25 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
                      offline=fetch is Fetch.OFFLINE, hold=hold)
     report(Phase("plan"))
     if busy is None and observed.interrupted:
-        cut = ", ".join(observed.interrupted)
-        # The step's script may have finished after lpam died (its guard wrote the exit
-        # code): then the record is settled and nothing is left to run again.
-        rest = ("the steps below finish it" if made.steps
-                else "its script finished since, so nothing is left to redo")
-        report(Note(f"the last apply was interrupted during {cut}; {rest}"))
+        report(Note(interrupted_note(observed.interrupted, made)))
     return store, made
+
+
+def interrupted_note(interrupted: tuple[str, ...], made: Plan) -> str:
+    """What the plan does about the steps the last apply was cut off in. A step's script
+    may have finished after lpam died (its guard wrote the exit code): then the record is
+    settled and that step is not run again."""
+    cut = ", ".join(interrupted)
+    planned = {s.id for s in made.steps}
+    again = [s for s in interrupted if s in planned]
+    if again:
+        return (f"the last apply was interrupted during {cut}; the steps below finish it "
+                f"({', '.join(again)} again)")
+    if made.steps:
+        return (f"the last apply was interrupted during {cut}; its script finished since, so "
+                "it is not run again; the steps below finish the apply")
+    return f"the last apply was interrupted during {cut}; its script finished since, so " \
+        "nothing is left to redo"
 
 
 def _held_plan(machine: Machine, store: GitStore, record: StateRecord, hold: str,
@@ -114,6 +128,32 @@ def _held_plan(machine: Machine, store: GitStore, record: StateRecord, hold: str
             return made
     return make_plan(Targets((), None), Observed(record=record, repositories={}),
                      now=machine.clock(), lpam_version=__version__, hold=hold)
+
+
+def _finishing_plan(machine: Machine, record: StateRecord, report: Report) -> Plan:
+    """A rollback that a fault cut off is finished before anything else: its steps back
+    to the good app it was returning to, by the rules of any plan, whatever the desired
+    state says now (the next run goes on from there)."""
+    from reconciler import generations
+    from reconciler.observe.machine import live_state
+    from reconciler.planning.lifecycle import app_steps, refreshed, target_of
+    from reconciler.planning.plan import sealed
+    from schemas.plan import Action, Change
+
+    assert record.cutover is not None and record.cutover.rollback is not None
+    previous, rollback = record.cutover.previous, record.cutover.rollback
+    failed = rollback.failed.name if rollback.failed is not None else "the new app"
+    back = f"to {previous.name}" if previous is not None else "removing the new app"
+    reason = (f"the rollback {back} after {failed} failed ({rollback.reason}) was cut off "
+              "by a fault: finished, and the failure recorded")
+    live = live_state(record.app.service if record.app else None, machine.services)
+    steps = app_steps(refreshed(record, live), None if previous is None else target_of(previous),
+                      generations.present(machine.layout),
+                      start=previous is None or not previous.held, verify=False)
+    report(Note(f"{reason}; the steps below finish it"))
+    return sealed(record, [Change(address="rollback", action=Action.UPDATE, reason=reason)],
+                  steps, now=machine.clock(), lpam_version=__version__,
+                  summary=f"Plan: finish the rollback {back}.")
 
 
 def hold_reason(record: StateRecord, desired: DesiredState) -> str | None:

@@ -16,6 +16,7 @@ from migrations import (
     desired_state_v0_to_v1,
     state_record_v1_to_v2,
     state_record_v2_to_v3,
+    state_record_v3_to_v4,
     upgrade,
 )
 from migrations.step import MigrationError
@@ -30,6 +31,7 @@ STEP_FIXTURES = {
     ("desired-state", "0.0"): FIXTURES / "desired-state" / "v0_to_v1",
     ("state-record", "1"): FIXTURES / "state-record" / "v1_to_v2",
     ("state-record", "2"): FIXTURES / "state-record" / "v2_to_v3",
+    ("state-record", "3"): FIXTURES / "state-record" / "v3_to_v4",
 }
 PATH = Path("doc.yaml")
 
@@ -42,6 +44,7 @@ def pairs(folder: Path) -> list[tuple[Path, Path]]:
 V0_PAIRS = pairs(STEP_FIXTURES[("desired-state", "0.0")])
 RECORD_PAIRS = pairs(STEP_FIXTURES[("state-record", "1")])
 RECORD_V3_PAIRS = pairs(STEP_FIXTURES[("state-record", "2")])
+RECORD_V4_PAIRS = pairs(STEP_FIXTURES[("state-record", "3")])
 
 
 def read(path: Path) -> Any:
@@ -103,6 +106,18 @@ def test_state_record_v2_to_v3_matches_fixture_and_validates(before: Path, after
     assert record.history == [] and record.last_apply is None
     assert record.app is None or (record.app.status == data["app"]["status"]
                                   and not record.app.held and record.app.service is None)
+
+
+@pytest.mark.parametrize(("before", "after"), RECORD_V4_PAIRS, ids=lambda p: p.name)
+def test_state_record_v3_to_v4_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert state_record_v3_to_v4.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    record = StateRecord.model_validate(upgrade("state-record", data, path=before))
+    assert record.cutover is None
+    # an app the old rules installed was taken for good: it stays a rollback target
+    assert record.app is None or record.app.good
 
 
 def test_state_record_v1_with_a_bad_flag_is_located() -> None:

@@ -20,6 +20,12 @@ polls its children once a second, so a program that exits at once is sometimes t
 one that ran past `startsecs`; it is then restarted rather than retried, and ends failed
 later or keeps restarting — never reported active, so the health check fails it either way.
 
+Orphans: a supervisord that was killed leaves its programs running, unsupervised
+(orphans.py finds them by the marks every program carries). Such a unit reads as active
+but not supervised; `stop` and `uninstall` end it, `start` ends it before it starts the
+unit again, and a supervisord that lpam launches anew is launched only once whatever the
+dead one ran is gone: never a second copy beside the first.
+
 Restarts: supervisord does not count them, so lpam does. `start` notes where
 supervisord's log ended; `state` counts the program's `spawned:` lines after that point
 (following one rotation of the log); every spawn but the first is a restart. After a
@@ -39,7 +45,7 @@ from pathlib import Path
 
 from supervisor.xmlrpc import Faults  # type: ignore[import-untyped]
 
-from reconciler.adapters.services import supervisor_conf
+from reconciler.adapters.services import orphans, supervisor_conf
 from reconciler.adapters.services.supervisor_daemon import (
     CALL_TIMEOUT,
     POLL,
@@ -98,17 +104,26 @@ class SupervisorServices:
     def check(self, unit: Unit) -> None:
         """The program section renders and its user exists; supervisord is not asked."""
         name = _program(unit.name)
-        log = Path(os.path.abspath(unit.log or self.layout.app_logs / f"{name}.log"))
-        supervisor_conf.program(replace(unit, directory=Path(os.path.abspath(unit.directory))),
-                                name=name, log=log)
+        self._section(unit, name)
         if unit.user is not None:
             _user_exists(name, unit.user)
+
+    def _section(self, unit: Unit, name: str) -> str:
+        """The program's section, its processes marked as this root's (orphans.py)."""
+        log = Path(os.path.abspath(unit.log or self.layout.app_logs / f"{name}.log"))
+        marked = {**unit.environment, **orphans.marks(self._conf, name)}
+        return supervisor_conf.program(
+            replace(unit, directory=Path(os.path.abspath(unit.directory)), environment=marked),
+            name=name, log=log)
+
+    @property
+    def _conf(self) -> Path:
+        return Path(os.path.abspath(self.layout.supervisor_conf))
 
     def install(self, unit: Unit) -> None:
         name = _program(unit.name)
         log = Path(os.path.abspath(unit.log or self.layout.app_logs / f"{name}.log"))
-        directory = Path(os.path.abspath(unit.directory))
-        text = supervisor_conf.program(replace(unit, directory=directory), name=name, log=log)
+        text = self._section(unit, name)
         if unit.user is not None:
             _user_exists(name, unit.user)
         client = self._ensure()
@@ -137,6 +152,7 @@ class SupervisorServices:
         client = self._connect()
         if client is not None:
             self._stop(client, program)
+        self._end_orphans(program)
         path = self.layout.supervisor_program(program)
         if path.exists():
             path.unlink()
@@ -164,6 +180,7 @@ class SupervisorServices:
                                    hint="install it first (`lpam apply`)")
             if state in ("STARTING", "RUNNING", "BACKOFF"):
                 return  # already started (BACKOFF: supervisord is retrying it)
+            self._end_orphans(program)  # what a dead supervisord ran: never a second copy
             self._note_start(program)
             client.call("startProcess", program, True, timeout=CALL_TIMEOUT + 30)
         except xmlrpc.client.Fault as exc:
@@ -188,6 +205,7 @@ class SupervisorServices:
         client = self._connect()
         if client is not None:
             self._stop(client, program)
+        self._end_orphans(program)
 
     def restart(self, name: str) -> None:
         self.stop(name)
@@ -209,13 +227,18 @@ class SupervisorServices:
             info = None
         except Down:
             info = None
+        statename = "" if info is None else str(info.get("statename", "UNKNOWN"))
+        if statename not in _ALIVE:
+            left = orphans.find(self._conf, program)
+            if left:  # its supervisord died (or was replaced) and left it running
+                return UnitState(name=name, known=True, active="active", sub="orphaned",
+                                 pid=left[0], supervised=False)
         if info is None:
             # Installed by lpam but not loaded (supervisord down after a reboot): a
             # stopped unit that `start` will bring up, not an unknown one.
             if self.layout.supervisor_program(program).is_file():
                 return UnitState(name=name, known=True, active="inactive", sub="stopped")
             return UnitState(name=name, known=False)
-        statename = str(info.get("statename", "UNKNOWN"))
         pid = int(info.get("pid") or 0)
         return UnitState(
             name=name, known=True, active=ACTIVITY.get(statename, "unknown"),
@@ -233,6 +256,16 @@ class SupervisorServices:
         return tail(path, max(lines, 0))
 
     # -- inside -------------------------------------------------------------------
+
+    def _end_orphans(self, program: str) -> None:
+        """End what a dead supervisord left running of `program` (orphans.py)."""
+        left = orphans.end(orphans.find(self._conf, program),
+                           wait=self._stop_seconds(program))
+        if left:
+            raise ServiceError(f"unit {program}: processes {left} that a dead supervisord "
+                               "left running do not end, even when killed",
+                               hint="see `ps -o pid,stat,cmd -p PID`; lpam starts no second "
+                               "copy beside them")
 
     def _connect(self) -> Client | None:
         return connect(self.layout)

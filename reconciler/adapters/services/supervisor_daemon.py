@@ -33,7 +33,7 @@ from typing import Any
 from supervisor.xmlrpc import Faults, SupervisorTransport  # type: ignore[import-untyped]
 
 from reconciler.adapters.scripts import DEFAULT_PATH, PASSED_THROUGH
-from reconciler.adapters.services import supervisor_conf
+from reconciler.adapters.services import orphans, supervisor_conf
 from reconciler.atomic import write_atomic
 from reconciler.errors import ServiceError
 from reconciler.flock import wait_exclusive
@@ -47,6 +47,7 @@ POLL = 0.05
 # `<socket>.<pid>` (pids up to 4194304) before it links the real name.
 SOCKET_LIMIT = 107 - len(".4194304")
 SHUTDOWN_STATE: int = Faults.SHUTDOWN_STATE
+ORPHAN_WAIT = 10.0  # what a dead supervisord left running gets this long to stop on TERM
 
 
 class Down(Exception):
@@ -263,20 +264,42 @@ def _pid_from_file(layout: Layout) -> int | None:
 
 
 def ensure(layout: Layout) -> Client:
-    """A client of this root's supervisord, launched first if none runs."""
+    """A client of this root's supervisord, launched first if none runs — once whatever a
+    dead predecessor ran is gone (orphans.py): a new one starts no app beside an old copy."""
     client = connect(layout)
     if client is not None:
         return client
     with _locked(layout.supervisor_lock):
-        return connect(layout) or _launch(layout)
+        client = connect(layout)
+        if client is not None:
+            return client
+        left = orphans.end(orphans.find(_conf(layout)), wait=ORPHAN_WAIT)
+        if left:
+            raise ServiceError(
+                f"processes {left} that a dead supervisord left running do not end, even "
+                "when killed", hint="see `ps -o pid,stat,cmd -p PID`; lpam starts no "
+                "supervisord beside them")
+        return _launch(layout)
+
+
+def _conf(layout: Layout) -> Path:
+    return Path(os.path.abspath(layout.supervisor_conf))
 
 
 def shutdown(layout: Layout, *, timeout: float = 60.0) -> bool:
-    """Stop the supervisord of this root and so every app it runs; False when none ran.
+    """Stop the supervisord of this root and so every app it runs; False when none ran
+    and none of its apps was left running by a dead one.
 
     Asks it to shut down (it stops its programs, each within its stop time), waits for its
-    pid to go, and kills it by pid as a last resort, then its programs' process groups,
-    which a killed supervisord would otherwise leave running."""
+    pid to go, and kills it by pid as a last resort; then ends whatever carries its marks
+    (orphans.py): what a killed supervisord — this one or an earlier one — left running."""
+    ran = _shutdown(layout, timeout=timeout)
+    left = orphans.find(_conf(layout))
+    orphans.end(left, wait=ORPHAN_WAIT)
+    return ran or bool(left)
+
+
+def _shutdown(layout: Layout, *, timeout: float) -> bool:
     try:
         client = connect(layout)
     except ServiceError:
@@ -305,7 +328,7 @@ def shutdown(layout: Layout, *, timeout: float = 60.0) -> bool:
     with contextlib.suppress(ProcessLookupError):
         os.kill(pid, signal.SIGKILL)
     _wait_gone(pid, 5.0)
-    for app in apps:
+    for app in apps:  # marked or not (a program an older lpam wrote): its group
         with contextlib.suppress(OSError):
             os.killpg(app, signal.SIGKILL)
     return True

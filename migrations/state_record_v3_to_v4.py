@@ -1,0 +1,26 @@
+"""State record 3 → 4: an app is good only once it proved good; a cutover survives faults.
+
+Why: version 3 could not tell an app that passed its health check from one whose check a
+kill cut off, nor remember which app a failed apply must return to once lpam had died:
+the next run trusted the unproven app and forgot the failure. Version 4 adds `app.good`
+and `cutover` (reconciler/execution/executor.py). A version-3 app was installed by the
+old rules, which took it for good, so it stays good; no cutover is under way.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from migrations.step import MigrationError
+
+
+def upgrade(doc: dict[str, Any]) -> dict[str, Any]:
+    """Mark the installed app good and add an empty cutover."""
+    out = dict(doc, version=4)
+    app = out.get("app")
+    if app is not None:
+        if not isinstance(app, dict):
+            raise MigrationError("`app` must be a mapping or null", loc=("app",))
+        out["app"] = {**app, "good": app.get("good", True)}
+    out.setdefault("cutover", None)
+    return out

@@ -1,0 +1,274 @@
+"""When a cutover fails or was cut off: the good app to return to, the rollback, and the
+record of how the apply ended — written so that no fault can make lpam forget them.
+
+The record's `cutover` (schemas/record.py) is written before the first cutover step and
+holds the *good* app the apply returns to if the new one fails (RAUC: a slot is good only
+once it proved good). A kill mid-cutover leaves it there, so the apply that resumes still
+knows where to go back, even though the record's app is now the unproven new one. Before
+an automatic rollback runs, its failure is written into it too: a rollback that a fault
+cut off is finished by the next run (workflow/planning.py plans its steps), which then
+records the failure in history and status as if the rollback had never been interrupted.
+
+The state record is how lpam knows what it did, so a step whose intent cannot be written
+does no work. When the record cannot be written at all (a full disk), what stands on disk
+is still exact: the error says what it shows and what the next apply will do from there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from reconciler import generations
+from reconciler.errors import HealthError, LpamError, StateWriteError, StepError
+from reconciler.execution.context import Context
+from reconciler.execution.journal import Journal
+from reconciler.execution.steps import RUNNERS
+from reconciler.planning.lifecycle import app_steps, resume_text, target_of
+from reconciler.planning.model import GenerationKey
+from schemas.plan import Phase, Step
+from schemas.record import (
+    ApplyResult,
+    AppRecord,
+    Cutover,
+    HistoryEntry,
+    Hold,
+    LastApply,
+    Rollback,
+    StateRecord,
+)
+
+Progress = Callable[[str], None]
+
+
+class AdvisoryJournal:
+    """The journal as the executor writes it mid-apply: advisory, so a write that fails
+    (a full disk, a path made a directory or a link) is reported once and the apply goes
+    on — the state record, written before each step's work, is what lpam trusts."""
+
+    def __init__(self, journal: Journal, warn: Progress) -> None:
+        self._journal = journal
+        self._warn = warn
+        self.problem: str | None = None
+
+    def _write(self, write: Callable[[], None]) -> None:
+        try:
+            write()
+        except (OSError, LpamError) as exc:
+            self._failed(exc)
+
+    def _failed(self, exc: OSError | LpamError) -> None:
+        if self.problem is None:
+            self.problem = exc.message if isinstance(exc, LpamError) else \
+                f"{exc.strerror or exc}"
+            self._warn(f"note: the apply journal could not be written ({self.problem}); "
+                       "the apply goes on: the state record keeps where it stands")
+
+    def open(self, ctx: Context) -> None:
+        """A fresh journal for this apply. Whatever stands in its place and cannot be moved
+        aside is a ConfigError (nothing was done yet); a failing write is advisory."""
+        try:
+            self._journal.open(ctx.clock(), warn=self._warn)
+        except OSError as exc:
+            self._failed(exc)
+
+    def begin(self, step: str, ctx: Context) -> None:
+        self._write(lambda: self._journal.begin(step, ctx.clock()))
+
+    def end(self, step: str, ctx: Context) -> None:
+        self._write(lambda: self._journal.end(step, ctx.clock()))
+
+    def fail(self, step: str, ctx: Context, message: str) -> None:
+        self._write(lambda: self._journal.fail(step, ctx.clock(), message))
+
+    def defer(self, ctx: Context, reason: str) -> None:
+        self._write(lambda: self._journal.defer(ctx.clock(), reason))
+
+    def close(self, ctx: Context) -> None:
+        self._write(lambda: self._journal.close(ctx.clock()))
+
+
+def journalled(step: Step, label: str, ctx: Context, journal: AdvisoryJournal) -> None:
+    """One step's work between its journal lines."""
+    journal.begin(label, ctx)
+    try:
+        RUNNERS[step.kind](step, ctx)
+    except LpamError as exc:
+        journal.fail(label, ctx, exc.message)
+        raise
+    journal.end(label, ctx)
+
+
+def returns_to(record: StateRecord, layout_generations: frozenset[GenerationKey]
+               ) -> AppRecord | None:
+    """The good app a failing apply goes back to: the one its interrupted predecessor
+    recorded; else the installed app if it proved good; else the newest good generation of
+    the history still on disk; else (nothing good is known) the installed app as it is."""
+    if record.cutover is not None:
+        return record.cutover.previous
+    app = record.app
+    if app is None or app.good:
+        return app
+    for entry in reversed(record.history):
+        if entry.result == "applied" and \
+                GenerationKey.of(entry.app, entry.generation) in layout_generations:
+            return entry.installed()
+    return app
+
+
+def begin_cutover(ctx: Context, previous: AppRecord | None) -> None:
+    """Written before the first cutover step; an earlier one (cut off) is kept."""
+    if ctx.record.cutover is None:
+        began = ctx.clock().isoformat(timespec="seconds")
+        ctx.save(ctx.record.model_copy(
+            update={"cutover": Cutover(previous=previous, began=began)}))
+
+
+def pending(record: StateRecord) -> Rollback | None:
+    """The automatic rollback a fault cut off, which this run finishes."""
+    return record.cutover.rollback if record.cutover is not None else None
+
+
+def roll_back(failed: Step, exc: LpamError, previous: AppRecord | None, ctx: Context,
+              journal: AdvisoryJournal, progress: Progress, *, record_result: bool
+              ) -> tuple[str, bool]:
+    """After a failed cutover step, go back to the app that ran before: (what happened, to
+    say; whether the car is back). The rollback is written down before it begins."""
+    if failed.phase is not Phase.CUTOVER:
+        return "", False
+    target = None if previous is None else target_of(previous)
+    # The car must not be left with no app: the previous one is started again unless an
+    # operator had stopped it (after a crash its status may say `installing` though it ran).
+    start = previous is None or not previous.held
+    record, app = ctx.record, ctx.record.app
+    if app is not None and previous is not None and app.status == "stopping" \
+            and app.generation == previous.generation:
+        # its stop.sh just failed: the old app is brought back up, not stopped again
+        record = record.model_copy(update={"app": app.model_copy(update={"status": "starting"})})
+    steps = app_steps(record, target, generations.present(ctx.layout), start=start,
+                      verify=False)
+    if not steps:
+        return "", False
+    what = f"rolling back to {previous.name}" if previous else "removing the half-installed app"
+    try:
+        if record_result and pending(ctx.record) is None:
+            _note_rollback(ctx, previous, f"step {failed.id} failed: {exc.message}",
+                           health=isinstance(exc, HealthError))
+        progress(f"{what} …")
+        for step in steps:
+            progress(f"  rollback: {step.id} …")
+            journalled(step, f"rollback/{step.id}", ctx, journal)
+    except LpamError as again:
+        return f" {what.capitalize()} failed too: {again.message}.", False
+    return (f" Rolled back to {previous.name}." if previous else " Removed the new app again.",
+            True)
+
+
+def _note_rollback(ctx: Context, previous: AppRecord | None, reason: str, *,
+                   health: bool) -> None:
+    cutover = ctx.record.cutover or Cutover(
+        previous=previous, began=ctx.clock().isoformat(timespec="seconds"))
+    rollback = Rollback(failed=ctx.record.app, reason=reason, health=health,
+                        time=ctx.clock().isoformat(timespec="seconds"))
+    ctx.save(ctx.record.model_copy(
+        update={"cutover": cutover.model_copy(update={"rollback": rollback})}))
+
+
+def fail(step: Step, exc: LpamError, previous: AppRecord | None, ctx: Context,
+         journal: AdvisoryJournal, progress: Progress, *, record_result: bool) -> LpamError:
+    """Roll back if the cutover had begun, record how the apply ended; the error to raise."""
+    attempted = ctx.record.app
+    rolled, back = roll_back(step, exc, previous, ctx, journal, progress,
+                             record_result=record_result)
+    message = f"step {step.id} failed: {exc.message}.{rolled} {where(step.phase, ctx)}"
+    hint = exc.hint or f"fix the cause and run `{ctx.command}` again; it resumes here"
+    try:
+        if record_result:
+            earlier = pending(ctx.record)
+            finish(ctx, "rolled back" if back else "failed", message,
+                   failed=(earlier.failed if earlier else attempted) if back else None)
+    except StateWriteError as unwritable:
+        return unwritable_error(ctx, unwritable)
+    if isinstance(exc, StateWriteError):
+        return unwritable_error(ctx, exc)
+    error = HealthError if isinstance(exc, HealthError) else StepError
+    return error(message, hint=hint, details=exc.details)
+
+
+def finish_pending(ctx: Context, rollback: Rollback, previous: AppRecord | None) -> LpamError:
+    """A rollback that a fault cut off is finished: record it as the apply that began it
+    would have, and report the failure that caused it (never success)."""
+    back = f"rolled back to {previous.name}" if previous else "removed the new app again"
+    message = (f"{rollback.reason}. The rollback was cut off by a fault; this run finished "
+               f"it: {back}. {where(Phase.CUTOVER, ctx)}")
+    try:
+        finish(ctx, "rolled back", message, failed=rollback.failed)
+    except StateWriteError as unwritable:
+        return unwritable_error(ctx, unwritable)
+    error = HealthError if rollback.health else StepError
+    return error(message, hint="fix the app (or its health settings) and apply again")
+
+
+def hold_after(record: StateRecord, result: ApplyResult) -> Hold | None:
+    """An apply that installs something other than what a rollback returned to ends the
+    hold; the apply that finished a cut-off rollback keeps it."""
+    hold, app = record.hold, record.app
+    if hold is None or result != "applied":
+        return hold
+    return hold if app is not None and app.generation == hold.generation else None
+
+
+def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
+           failed: AppRecord | None = None) -> None:
+    """Record how the apply ended, and the generation it made current (history). A
+    generation enters the history as applied only once it proved good. The cutover ends
+    with the apply, unless it failed mid-way: then the next run still needs it."""
+    when = ctx.clock().isoformat(timespec="seconds")
+    history = list(ctx.record.history)
+    for app, outcome in ((failed, "rolled back"), (ctx.record.app, "applied")):
+        if app is None or (outcome == "applied" and (result != "applied" or not app.good)):
+            continue
+        last = next((h for h in reversed(history) if h.result == "applied"), None)
+        if outcome == "applied" and last is not None and \
+                (last.generation, last.params) == (app.generation, app.params):
+            continue
+        history.append(HistoryEntry.of(
+            app, time=when, result="rolled back" if outcome == "rolled back" else "applied"))
+    ctx.save(ctx.record.model_copy(update={
+        "last_apply": LastApply(time=when, result=result, reason=reason),
+        "history": history[-20:],
+        "hold": hold_after(ctx.record, result),
+        "cutover": ctx.record.cutover if result == "failed" else None,
+    }))
+
+
+def where(phase: Phase, ctx: Context) -> str:
+    if phase is Phase.PREPARE:
+        return "Nothing was changed on the running app."
+    app = ctx.record.app
+    if app is None:
+        return "No app is installed now."
+    state = {"running": "running", "installed": "installed, not running"}.get(
+        app.status, f"{app.status} when the script failed")
+    return f"Installed now: {app.name} ({state})."
+
+
+def unwritable_error(ctx: Context, exc: StateWriteError) -> StateWriteError:
+    """The state record cannot be written: no step did work it could not record, so the
+    record on disk is exact. Say what it shows and what the next apply does from it."""
+    from reconciler.state import read_record
+
+    try:
+        record = read_record(ctx.layout)
+    except LpamError:
+        record = ctx.record
+    if exc.explained:
+        return exc
+    error = StateWriteError(
+        f"{exc.message}. lpam stopped there: no step did work it could not record. "
+        f"{resume_text(record)}",
+        path=exc.path,
+        hint=f"free space (or fix the permissions) under {exc.path.parent if exc.path else '/'}"
+        f", then run `{ctx.command}`: it goes on from what the record shows",
+    )
+    error.explained = True
+    return error
