@@ -135,8 +135,11 @@ def settle(ctx: Context, app: AppRecord, unit: str, seconds: float) -> None:
         problem = None
         if not state.running:
             problem = f"{state.describe()}"
-        elif state.restarts > first.restarts or state.pid != first.pid:
+        elif state.pid != first.pid:
             problem = f"unit {unit} restarted (pid {first.pid} → {state.pid})"
+        elif state.restarts > first.restarts:
+            times = state.restarts - first.restarts
+            problem = f"unit {unit} restarted {times} time{'' if times == 1 else 's'}"
         if problem is not None:
             raise HealthError(
                 f"{app.name} did not stay up for {seconds:g} s after it started: {problem}",

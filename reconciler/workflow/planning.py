@@ -150,7 +150,7 @@ def _finishing_plan(machine: Machine, record: StateRecord, report: Report) -> Pl
     steps = app_steps(refreshed(record, live), None if previous is None else target_of(previous),
                       generations.present(machine.layout),
                       start=previous is None or not previous.held, verify=False)
-    report(Note(f"{reason}; the steps below finish it"))
+    report(Note(f"a rollback {back} was cut off by a fault; the steps below finish it"))
     return sealed(record, [Change(address="rollback", action=Action.UPDATE, reason=reason)],
                   steps, now=machine.clock(), lpam_version=__version__,
                   summary=f"Plan: finish the rollback {back}.")

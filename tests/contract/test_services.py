@@ -445,7 +445,8 @@ def test_a_dead_supervisord_is_started_anew(sv: World) -> None:
     try:
         os.kill(daemon, signal.SIGKILL)
         assert wait_for(lambda: not alive(daemon))
-        kill(app)  # orphaned by the kill; a stale socket and pid file stay behind
+        kill(app)  # orphaned by the kill, and gone; a stale socket and pid file stay behind
+        assert wait_for(lambda: not alive(app))
         assert layout.supervisor_socket.exists() and layout.supervisor_pid.exists()
         assert sv.services.state(NAME).active == "inactive"
         sv.services.start(NAME)
@@ -453,6 +454,74 @@ def test_a_dead_supervisord_is_started_anew(sv: World) -> None:
         assert again != daemon and sv.services.state(NAME).running
     finally:
         kill(app)
+
+
+def marked(layout: Layout) -> list[int]:
+    """Live processes carrying this root's supervisord marks (orphans.py)."""
+    from reconciler.adapters.services import orphans
+
+    return orphans.find(Path(os.path.abspath(layout.supervisor_conf)))
+
+
+def test_what_a_killed_supervisord_ran_is_seen_running_unsupervised(sv: World) -> None:
+    layout = Layout(sv.root)
+    sv.services.install(sv.unit())
+    sv.services.start(NAME)
+    app = sv.services.state(NAME).pid
+    assert app is not None and marked(layout) == [app]
+    [daemon] = supervisords(layout)
+    try:
+        os.kill(daemon, signal.SIGKILL)
+        assert wait_for(lambda: not alive(daemon))
+        state = sv.services.state(NAME)
+        assert (state.running, state.supervised, state.pid) == (True, False, app)
+        assert "its service manager died" in state.describe()
+    finally:
+        kill(app)
+
+
+@pytest.mark.parametrize("how", ["start", "restart"])
+def test_a_start_after_supervisord_was_killed_never_makes_a_second_copy(
+    sv: World, how: str
+) -> None:
+    """No stop comes first (the record said the start was under way): start itself ends
+    what the dead supervisord left running, and a new supervisord runs the one copy."""
+    layout = Layout(sv.root)
+    sv.services.install(sv.unit())
+    sv.services.start(NAME)
+    orphan = sv.services.state(NAME).pid
+    assert orphan is not None
+    [daemon] = supervisords(layout)
+    try:
+        os.kill(daemon, signal.SIGKILL)
+        assert wait_for(lambda: not alive(daemon))
+        getattr(sv.services, how)(NAME)
+        state = sv.services.state(NAME)
+        assert state.running and state.supervised and state.pid != orphan
+        assert not alive(orphan) and marked(layout) == [state.pid]
+    finally:
+        kill(orphan)
+
+
+def test_a_new_supervisord_starts_only_once_the_old_ones_programs_are_gone(
+    sv: World
+) -> None:
+    """Another unit's start launches the new supervisord: the first unit's orphan is
+    ended before it, so nothing of the dead one's runs beside what the new one runs."""
+    layout = Layout(sv.root)
+    sv.services.install(sv.unit())
+    sv.services.start(NAME)
+    orphan = sv.services.state(NAME).pid
+    assert orphan is not None
+    [daemon] = supervisords(layout)
+    try:
+        os.kill(daemon, signal.SIGKILL)
+        assert wait_for(lambda: not alive(daemon))
+        sv.services.install(sv.unit("lpam-app-beta"))
+        assert not alive(orphan)
+        assert sv.services.state(NAME).active == "inactive"
+    finally:
+        kill(orphan)
 
 
 def test_shutdown_stops_supervisord_and_its_programs(sv: World) -> None:

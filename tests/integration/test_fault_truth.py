@@ -84,21 +84,23 @@ def url(make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon) -> str:
 
 
 def bus_holders(root: Path) -> list[int]:
-    """The live processes of this root's apps (their environment names the root)."""
+    """The live app processes of this root (their environment names the root): one per
+    copy of an app. The processes a copy starts on its way (python3 may be a shim that
+    runs shell helpers first) are its children, not other copies."""
     mark = f"LPAM_ROOT={root}".encode()
-    found = []
+    found: dict[int, int] = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit() or int(entry.name) == os.getpid():
             continue
         try:
             env = (entry / "environ").read_bytes().split(b"\0")
             cmd = (entry / "cmdline").read_bytes()
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+            stat = (entry / "stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        if mark in env and b"bus.py" in cmd and state not in ("Z", "X"):
-            found.append(int(entry.name))
-    return sorted(found)
+        if mark in env and b"bus.py" in cmd and stat[0] not in ("Z", "X"):
+            found[int(entry.name)] = int(stat[1])
+    return sorted(pid for pid, parent in found.items() if parent not in found)
 
 
 def apps_running(root: Path) -> list[str]:

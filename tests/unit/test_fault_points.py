@@ -282,3 +282,22 @@ def test_an_unwritable_record_stops_where_it_stands_and_says_so(
     record = read_record(car.layout)
     assert record.app is not None and (record.app.name, record.app.running) == ("y", True)
     assert car.active() == {"y"} and not car.scripts.violations
+
+
+def test_with_no_cutover_recorded_an_unproven_app_is_never_returned_to(tmp_path: Path) -> None:
+    """The good app to go back to, when no cut-off apply named one: the installed app if
+    it proved good, else the newest good generation of the history still on disk."""
+    from reconciler import generations
+    from reconciler.execution.recovery import returns_to
+
+    car = good_x(tmp_path)
+    x = read_record(car.layout).app
+    assert x is not None
+    assert returns_to(read_record(car.layout), generations.present(car.layout)) == x
+    unproven = x.model_copy(update={"name": "z", "generation": "z-gen", "good": False})
+    record = read_record(car.layout).model_copy(update={"app": unproven, "cutover": None})
+    back = returns_to(record, generations.present(car.layout))
+    assert back is not None and (back.name, back.generation, back.good) == (
+        "x", x.generation, True)
+    gone = record.model_copy(update={"history": []})  # nothing good known: what is there
+    assert returns_to(gone, generations.present(car.layout)) == unproven
