@@ -23,6 +23,11 @@ def shorten(text: str, limit: int = MESSAGE_LIMIT) -> str:
         f"{text[len(text) - keep // 4:]}"
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised where lpam stands (like KeyboardInterrupt for Ctrl-C), so that the
+    running script is stopped first and the apply records that it was interrupted."""
+
+
 class LpamError(Exception):
     """Base of every error lpam reports to a user. Its message is one line of bounded
     length, whatever value it echoes."""

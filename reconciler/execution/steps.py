@@ -67,8 +67,11 @@ def check_out(step: Step, ctx: Context) -> None:
 def record_checkout(step: Step, ctx: Context) -> None:
     key, url, commit = _arg(step, "key"), _arg(step, "url"), _arg(step, "commit")
     ref = step.args.get("ref")
+    before = ctx.record.repository(key)
+    # what ran stays what ran until the apply succeeds (the same URL: the same repository)
+    applied = before.applied if before is not None and before.url == url else None
     entry = RepositoryRecord(key=key, url=url, ref=ref if isinstance(ref, str) else None,
-                             commit=commit)
+                             commit=commit, applied=applied)
     others = [r for r in ctx.record.repositories if r.key != key]
     ctx.save(ctx.record.model_copy(update={"repositories": sorted([*others, entry],
                                                                   key=lambda r: r.key)}))

@@ -72,8 +72,11 @@ def resolve(
     repos = _parallel(lambda s: _resolve_repo(s, base_dir, store, fetch, desired), specs,
                       fetch)
     workspace = workspace_target(desired, root, default_user)
-    app = (_resolve_app(desired, repos, store, default_user, fetch, workspace)
-           if desired.app is not None else None)
+    app = None
+    if desired.app is not None:
+        bare: set[str] = set()  # repositories with no catalog, as reading them found
+        app = _resolve_app(desired, repos, store, default_user, fetch, workspace, bare)
+        repos = [replace(r, no_catalog=True) if r.key in bare else r for r in repos]
     return Targets(repositories=tuple(repos), app=app)
 
 
@@ -155,22 +158,25 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: GitStore,
     return RepoTarget(key=key, url=url, ref=ref, commit=commit)
 
 
+NO_CATALOG = Catalog()  # what a commit without libpanda-apps.yaml offers: nothing
+
+
 def _catalog(store: GitStore, repo: RepoTarget) -> Catalog | None:
-    """The repository's app catalog at its target commit; None when not fetched yet.
-    A commit's content is the same whichever remote brought it, so the origin of the
-    checkout does not matter here."""
+    """The repository's app catalog at its target commit; None when not fetched yet,
+    NO_CATALOG when the commit has no libpanda-apps.yaml. A commit's content is the same
+    whichever remote brought it, so the origin of the checkout does not matter here."""
     if repo.commit is None or not store.has_commit(repo.key, repo.commit):
         return None
     data = store.read_file(repo.key, repo.commit, CATALOG_FILE)
     if data is None:
-        return Catalog()
+        return NO_CATALOG
     label = Path(f"{repo.key}@{short(repo.commit)}/{CATALOG_FILE}")
     return parse_catalog(label, data.decode("utf-8", "replace"))
 
 
 def _resolve_app(
     desired: DesiredState, repos: list[RepoTarget], store: GitStore, default_user: str | None,
-    fetch: Fetch, workspace: WorkspaceTarget,
+    fetch: Fetch, workspace: WorkspaceTarget, bare_keys: set[str],
 ) -> AppTarget:
     spec = desired.app
     assert spec is not None
@@ -187,11 +193,15 @@ def _resolve_app(
     found: list[tuple[RepoTarget, CatalogApp]] = []
     unknown: list[RepoTarget] = []
     offered: list[str] = []
+    bare: list[str] = []
     for repo in candidates:
         catalog = _catalog(store, repo)
         if catalog is None:
             unknown.append(repo)
             continue
+        if catalog is NO_CATALOG:
+            bare.append(f"{repo.key}@{short(repo.commit)}")
+            bare_keys.add(repo.key)
         app = catalog.app(spec.name)
         offered += [f"{a.name} ({repo.key})" for a in catalog.apps]
         if app is not None:
@@ -218,10 +228,13 @@ def _resolve_app(
         repo = unknown[0] if len(unknown) == 1 else RepoTarget(UNKNOWN, "", None, None)
         return AppTarget(name=spec.name, repository=repo.key, commit=repo.commit, path=None,
                          tree=None, params=dict(spec.params))
+    missing = f"; {', '.join(bare)} {'has' if len(bare) == 1 else 'have'} no " \
+        f"{CATALOG_FILE} (an app repository lists its apps there)" if bare else ""
     raise CatalogError(
         f"app {spec.name} is not in the catalog of any desired repository "
-        f"(available: {', '.join(offered) or 'none'})",
-        hint="check the app name, or add the repository that offers it",
+        f"(available: {', '.join(offered) or 'none'}){missing}",
+        hint="check the app name, or add the repository that offers it" if not bare else
+        f"add {CATALOG_FILE} to that repository, or add the repository that offers the app",
     )
 
 

@@ -18,6 +18,7 @@ from reconciler.planning.model import (
     short,
 )
 from reconciler.unit import UnitState
+from schemas.catalog import CATALOG_FILE
 from schemas.names import is_hex_commit
 from schemas.plan import Action, Change
 from schemas.record import AppRecord, RepositoryRecord, StateRecord
@@ -63,14 +64,27 @@ def _describe_ref(ref: str | None) -> str:
 
 
 def _repository(t: RepoTarget, observed: Observed) -> Change:
+    ref = _describe_ref(t.ref)
+    if t.as_of_last_fetch:
+        ref += " (offline: as of the last fetch)"
+    if t.no_catalog:
+        return _no_catalog(_repository_change(t, observed, ref))
+    return _repository_change(t, observed, ref)
+
+
+def _no_catalog(change: Change) -> Change:
+    """A repository whose commit has no libpanda-apps.yaml offers no app: said, not hidden."""
+    warning = (f"{change.address.removeprefix('repository.')} has no {CATALOG_FILE} at "
+               f"{short(str((change.after or {}).get('commit')))}: it offers no apps")
+    return change.model_copy(update={"warnings": [*change.warnings, warning]})
+
+
+def _repository_change(t: RepoTarget, observed: Observed, ref: str) -> Change:
     rec = observed.record.repository(t.key)
     obs = observed.repositories.get(t.key)
     after: dict[str, str | bool | dict[str, str] | None] = {
         "url": t.url, "ref": t.ref, "commit": t.commit,
     }
-    ref = _describe_ref(t.ref)
-    if t.as_of_last_fetch:
-        ref += " (offline: as of the last fetch)"
     blocked = "the update will be refused until they are committed elsewhere or removed"
     if rec is None:
         return Change(

@@ -45,6 +45,7 @@ class RepoTarget:
     ref: str | None
     commit: str | None
     as_of_last_fetch: bool = False
+    no_catalog: bool = False  # an app repository whose commit has no libpanda-apps.yaml
 
 
 @dataclass(frozen=True)

@@ -116,9 +116,11 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
         return _record(machine, status, Synced("nothing to do", revision,
                                                "this revision failed before"))
     try:
-        label, desired = _desired(machine, config, vehicle, revision)
-        done = apply(machine, label, desired, options=options, confirm=lambda plan: True,
-                     report=report, local=offline is not None)
+        followed = _desired(machine, config, vehicle, revision,
+                            keep=frozenset(filter(None, [status.applied_revision])))
+        done = apply(machine, followed.label, followed.desired, options=options,
+                     confirm=lambda plan: True, report=report, local=offline is not None,
+                     base_dir=followed.base_dir)
     except StopRequested as exc:  # not a failure: the next pass tries the revision again
         return _record(machine, status, Synced("stopped", revision, exc.message))
     except Deferred as exc:  # prepared, not cut over: the next pass tries again
@@ -221,19 +223,65 @@ def _tip(machine: Machine, config: AgentConfig) -> str | None:
     return None if refs is None else refs.resolve(config.source.branch)
 
 
+@dataclass(frozen=True)
+class Followed:
+    """A desired state read from the source at a revision: its label (the file as
+    `fleet.git@c92f32f2ab56/desired-state.yaml`, in errors and the record), and where its
+    relative files (`dbc:`, `log:`) are on this machine."""
+
+    label: Path
+    desired: DesiredState
+    base_dir: Path
+
+
 def _desired(machine: Machine, config: AgentConfig, vehicle: str,
-             revision: str) -> tuple[Path, DesiredState]:
-    """This vehicle's desired state at `revision`, relative URLs made absolute."""
+             revision: str, *, keep: frozenset[str] | None = None) -> Followed:
+    """This vehicle's desired state at `revision`, relative URLs made absolute and the
+    files it names relative to itself copied out of the source (the copies of revisions
+    other than those in `keep` removed; None keeps all)."""
     for name in (f"{VEHICLE_DIR}/{vehicle}.yaml", DEFAULT_FILE):
         found = desired_at(machine, config.source.url, revision, name)
         if found is not None:
-            return found
+            label, desired = found
+            return Followed(label, desired,
+                            _files_of(machine, revision, name, desired, keep=keep))
     raise ConfigError(f"neither {VEHICLE_DIR}/{vehicle}.yaml nor {DEFAULT_FILE} is in the "
                       f"source at {revision[:12]}", path=machine.layout.agent_config,
                       hint=f"commit a desired state for this vehicle ({vehicle}) or for all")
 
 
-def applied_desired(machine: Machine) -> tuple[Path, DesiredState] | None:
+def _files_of(machine: Machine, revision: str, name: str, desired: DesiredState, *,
+              keep: frozenset[str] | None) -> Path:
+    """The folder that stands for `name`'s folder in the source at `revision`: the files
+    the desired state names relative to itself (`vehicle.speed.dbc`, `vehicle.source.log`)
+    are copied there once, as they were committed."""
+    import shutil
+
+    from reconciler.atomic import write_atomic
+
+    root = machine.layout.agent_files
+    folder = posixpath.dirname(name)
+    vehicle = desired.vehicle
+    for relative in (vehicle.speed.dbc, vehicle.source.log):
+        if relative is None or relative.startswith("/"):
+            continue
+        path = posixpath.normpath(posixpath.join(folder, relative))
+        if path.startswith("../"):
+            raise ConfigError(f"{relative} lies outside the desired-state repository",
+                              path=name, hint="name a file inside the repository")
+        copy = root / revision / path
+        data = None if copy.is_file() else machine.store().read_file(SOURCE_KEY, revision,
+                                                                      path)
+        if data is not None:
+            write_atomic(copy, data)
+    if keep is not None and root.is_dir():
+        for old in root.iterdir():
+            if old.name not in keep | {revision}:
+                shutil.rmtree(old, ignore_errors=True)
+    return root / revision / folder
+
+
+def applied_desired(machine: Machine) -> Followed | None:
     """The desired state the agent last applied (from the store, no network), for what
     must obey it between passes — an operator's stop obeys its update gates; None on a
     car with no agent or before its first applied pass."""
@@ -289,8 +337,8 @@ def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: s
     from reconciler.workflow.planning import plan
 
     try:
-        label, desired = _desired(machine, config, vehicle, revision)
-        plan(machine, label, desired, report=report)
+        followed = _desired(machine, config, vehicle, revision)
+        plan(machine, followed.label, followed.desired, report=report)
     except LpamError as exc:
         return Synced("fetched", revision, f"the source was fetched; its pins not: "
                       f"{exc.message}")

@@ -56,7 +56,7 @@ def record(app: str | None = "alpha", state: AppStatus = "running", *,
         generation="g1", status=state)
     return StateRecord(
         repositories=[RepositoryRecord(key="apps", url="git://x/apps.git", ref=None,
-                                       commit=NEW)],
+                                       commit=NEW, applied=NEW)],
         app=installed, strays=strays or [])
 
 
