@@ -53,6 +53,8 @@ from reconciler.layout import Layout, slug
 from reconciler.reading import MIB
 from schemas.names import is_hex_commit, redact
 
+BLOBS_LIMIT = 10_000  # files in one app folder; more is not an app folder to compare
+
 # dulwich.porcelain is imported where it is used, as dulwich.client is in adapters.remote: a
 # no-op plan of pinned repositories reads the store only and should not pay for the network
 # stack.
@@ -174,6 +176,30 @@ class GitStore:
             assert isinstance(tree, Tree)
             return sorted(entry.path.decode("utf-8", "replace") for entry in tree.items()
                           if entry.mode is not None and stat.S_ISREG(entry.mode))
+
+    def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
+        """See the `Store` port: every file below `commit:folder` and its blob id."""
+        with self._open(key) as repo:
+            found = None if repo is None else _lookup(repo, commit, folder)
+            if repo is None or found is None or not stat.S_ISDIR(found[0]):
+                return None
+            blobs: dict[str, str] = {}
+            todo: list[tuple[str, ObjectID]] = [("", found[1])]
+            while todo:
+                prefix, sha = todo.pop()
+                tree = repo.object_store[sha]
+                assert isinstance(tree, Tree)
+                for entry in tree.items():
+                    if entry.mode is None or entry.path is None or entry.sha is None:
+                        continue
+                    name = prefix + entry.path.decode("utf-8", "replace")
+                    if stat.S_ISDIR(entry.mode):
+                        todo.append((name + "/", entry.sha))
+                    elif stat.S_ISREG(entry.mode) or stat.S_ISLNK(entry.mode):
+                        blobs[name] = entry.sha.decode("ascii")
+                if len(blobs) > BLOBS_LIMIT:
+                    return None
+            return blobs
 
     def signature(self, key: str, commit: str) -> tuple[bytes | None, bytes]:
         """The commit's signature (its `gpgsig` header, None when unsigned) and what was

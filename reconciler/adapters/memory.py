@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from reconciler.blobs import blob_id
 from reconciler.errors import Deferred, DependencyError, GitError, RefNotFoundError, StepError
 from reconciler.execution.ports import Log
 from reconciler.layout import Layout
@@ -66,6 +67,22 @@ class MemoryStore:
             shutil.rmtree(self.layout.repository_dir(key), ignore_errors=True)
         self.checkouts.pop(key, None)
         self.fetched.pop(key, None)
+
+    def read_file(self, key: str, commit: str, path: str) -> bytes | None:
+        """A file of a folder (`folder/name`); files outside folders are not modelled."""
+        url = self.origin_url(key)
+        folder, _, name = path.rpartition("/")
+        found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
+        if found is None or not self.has_commit(key, commit) or name not in found[1]:
+            return None
+        return found[1][name].encode("utf-8")
+
+    def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
+        url = self.origin_url(key)
+        found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
+        if found is None or not self.has_commit(key, commit):
+            return None
+        return {name: blob_id(text.encode("utf-8")) for name, text in found[1].items()}
 
     def export_folder(self, key: str, commit: str, folder: str, dest: Path) -> str:
         url = self.origin_url(key)

@@ -40,6 +40,17 @@ class Store(Protocol):
         """Copy `commit:folder` into the new directory `dest`; the folder's tree hash."""
         ...
 
+    def read_file(self, key: str, commit: str, path: str) -> bytes | None:
+        """The regular file `commit:path` (None without it; a link is not followed)."""
+        ...
+
+    def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
+        """Each file under `commit:folder` (its path inside the folder, `/`-separated) and
+        its git blob id; None without that folder or with more files than an app has.
+        Blob ids name content only, so a copy of the folder on disk can be told equal
+        whatever its files' modes (adopting an app LPAM installed)."""
+        ...
+
 
 class Scripts(Protocol):
     """Runs one lifecycle script of an app; see adapters/scripts.py for the guarantees."""

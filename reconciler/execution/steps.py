@@ -369,6 +369,24 @@ def install(step: Step, ctx: Context) -> None:
     _lifecycle(ctx, app, "install", "installing", "installed")
 
 
+def adopt(step: Step, ctx: Context) -> None:
+    """LPAM's app is the desired one as it is: its record becomes lpam's (running if its
+    unit ran), then its path leads to the generation staged from git (same files; LPAM's
+    copy is moved aside, not deleted). No script runs: nothing that runs is touched."""
+    gen = _wanted(step, ctx)
+    folder = _arg(step, "folder")
+    place = ctx.layout.generation_dir(gen.app, gen.generation)
+    if not place.is_dir():
+        raise StepError(f"{gen.app}: generation {gen.generation} was not staged")
+    status: AppStatus = "running" if _optional(step, "running") == "yes" else "installed"
+    app = _record(gen, _optional(step, "user")).model_copy(
+        update={"status": status, "good": True})
+    strays = [s for s in ctx.record.strays if s.folder != folder]
+    ctx.save(ctx.record.model_copy(update={"app": app, "strays": strays}))
+    appdir.point(ctx.layout, gen.folder, place)
+    appdir.set_current(ctx.layout, gen.folder)
+
+
 def configure(step: Step, ctx: Context) -> None:
     """New parameters (or user) for the installed generation; a unit lpam wrote is
     rewritten so that its next start has them."""
@@ -460,6 +478,7 @@ def prune(ctx: Context, *, keep: int = 3) -> None:
     if record.app is not None:
         kept.add(GenerationKey.of(record.app.name, record.app.generation))
     generations.prune(ctx.layout, kept)
+    appdir.keep_offered(ctx.layout, ctx.store, record)
     _collect_dependencies(ctx)
     pending = {f"{r}.exit" for r in [record.app.run if record.app else None,
                                       *(s.run for s in record.strays)] if r}
@@ -498,4 +517,5 @@ RUNNERS: dict[StepKind, Callable[[Step, Context], None]] = {
     StepKind.CONFIGURE: configure,
     StepKind.START: start,
     StepKind.VERIFY: verify,
+    StepKind.ADOPT: adopt,
 }

@@ -40,9 +40,25 @@ def diff(targets: Targets, observed: Observed) -> list[Change]:
         if rec.key not in wanted
     ]
     changes += dependencies.changes(targets.app, observed.deps)
+    if observed.adopt is not None and targets.app is not None:
+        strays = strays_refreshed(observed.record, observed.stray_live)
+        others = [s for s in strays.strays if s.name != observed.adopt]
+        changes += _strays(strays.model_copy(update={"strays": others}))
+        changes.append(_adoption(targets.app, observed.adopt))
+        return changes
     changes += _strays(strays_refreshed(observed.record, observed.stray_live))
     changes.append(_app(targets.app, observed.record.app, observed.generations, observed.live))
     return changes
+
+
+def _adoption(t: AppTarget, stray: str) -> Change:
+    """The app LPAM installed is the desired one as it is: taken over in place."""
+    return Change(
+        address="app", action=Action.CREATE,
+        after=_app_fields(t.name, t.repository, t.commit, t.params, None),
+        reason=f"{t.name}, installed by LPAM as {stray}, is the desired app as it is (same "
+        f"files as {t.repository} at {short(t.commit)}): adopted in place — no script runs "
+        "and it is not restarted")
 
 
 def _repo_fields(rec: RepositoryRecord) -> dict[str, str | bool | dict[str, str] | None]:

@@ -127,3 +127,19 @@ def test_remove_forgets_the_checkout(world: tuple[Store, Remote, Layout]) -> Non
     assert not store.has_commit(KEY, remote.first)
     assert not layout.repository_dir(KEY).exists()
     store.remove(KEY)  # removing what is gone is not an error
+
+
+def test_folder_blobs_name_each_file_by_its_content(
+    world: tuple[Store, Remote, Layout], tmp_path: Path,
+) -> None:
+    """What a copy of the folder on disk is compared with when an app LPAM installed is
+    adopted: each file's git blob id, whatever its mode."""
+    from reconciler.blobs import blob_id
+
+    store, remote, _ = world
+    store.fetch(KEY, remote.url)
+    assert store.folder_blobs(KEY, remote.first, "alpha") == {
+        "run.sh": blob_id(b"echo one\n")}
+    assert store.folder_blobs(KEY, remote.second, "alpha") == {
+        "run.sh": blob_id(b"echo two\n")}
+    assert store.folder_blobs(KEY, remote.first, "nowhere") is None
