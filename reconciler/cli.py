@@ -365,11 +365,20 @@ class Terminal:
         now_ = self._clock()
         if line.startswith("$ "):  # a new command: its clock starts
             self._started = self._shown = now_
-            print(f"      {line[:100]}", flush=True)
+            print(f"      {_fit(line, 100)}", flush=True)
         elif now_ - self._shown >= self.EVERY:
             self._shown = now_
-            shown = "".join(c if c.isprintable() else "?" for c in line)[:80]
-            print(f"      … {now_ - self._started:.0f} s: {shown}", flush=True)
+            print(f"      … {now_ - self._started:.0f} s: {_fit(line, 80)}", flush=True)
+
+
+def _fit(line: str, width: int) -> str:
+    """`line` in at most `width` printable characters, cut in the middle: the end of a
+    command line (the path, the package) is the part that says most."""
+    text = "".join(c if c.isprintable() else "?" for c in line)
+    if len(text) <= width:
+        return text
+    head = width * 2 // 5
+    return f"{text[:head]} … {text[len(text) - (width - head - 3):]}"
 
 
 def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:

@@ -36,7 +36,9 @@ class LpamError(Exception):
 
     def __init__(self, message: str, *, hint: str | None = None,
                  details: list[str] | None = None) -> None:
-        message = shorten(message)
+        # one line: a server's or a library's text may end in a line break, which a
+        # terminal-safe rendering would show as a stray "?" ("remote side.?")
+        message = shorten(" ".join(message.strip().splitlines()))
         super().__init__(message)
         self.message = message
         self.hint = hint
