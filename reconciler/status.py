@@ -210,9 +210,12 @@ def as_json(layout: Layout, *, store: Objects | None = None,
         "last_apply": None if last is None else {**last.model_dump(mode="json"),
                                                  "shown": _last_apply(layout, record)},
         "repositories": [
-            {"key": r.key, "url": r.url, "ref": r.ref, "commit": r.commit,
-             "applied_commit": r.applied, "differs_from_what_runs": r.applied != r.commit}
+            {"key": r.key, "url": r.url, "ref": r.ref, "commit": r.commit}
             for r in record.repositories
+        ],
+        "checkouts_not_running": [  # moved by an apply that did not succeed
+            {"key": r.key, "commit": r.commit, "applied_commit": r.applied}
+            for r in record.repositories if r.applied != r.commit
         ],
         "holds": holds(record),
         "apps": [asdict(r) for r in rows(layout, record=record, store=store, live=live)],

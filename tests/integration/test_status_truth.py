@@ -43,8 +43,9 @@ def test_status_shows_the_running_commit_after_a_failed_apply_of_another(
     alpha = next(r for r in shown["apps"] if r["app"] == "alpha")
     assert (alpha["commit"], alpha["running"]) == (first[:12], True)  # what runs
     [repository] = shown["repositories"]
-    assert repository["commit"] == second and repository["applied_commit"] == first
-    assert repository["differs_from_what_runs"] is True
+    assert repository["commit"] == second
+    assert shown["checkouts_not_running"] == [
+        {"key": repository["key"], "commit": second, "applied_commit": first}]
     table = lpam("status").stdout
     assert f"checked out at {second[:12]} by an apply that did not succeed; what runs came " \
         f"from {first[:12]}" in table, table
