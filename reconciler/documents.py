@@ -29,6 +29,10 @@ _HINTS = {
     "literal_error": "use one of the values shown",
 }
 
+_EXAMPLES = {"agent configuration": "the README's agent.yaml (A fleet that follows git)",
+             "catalog": "the README's libpanda-apps.yaml (Apps are services)"}
+"""Where a misspelt key's right spelling is shown, for documents other than a desired state."""
+
 
 def validation_error(doc: Document, exc: ValidationError, what: str) -> ConfigError:
     """The first pydantic complaint as a ConfigError at the offending node."""
@@ -44,7 +48,10 @@ def validation_error(doc: Document, exc: ValidationError, what: str) -> ConfigEr
         message = f"{field} is required"
     else:
         message = f"{field}: {message}"
-    return doc.error(message, loc, _HINTS.get(error["type"]))
+    hint = _HINTS.get(error["type"])
+    if error["type"] == "extra_forbidden" and what in _EXAMPLES:
+        hint = f"remove it, or check its spelling against {_EXAMPLES[what]}"
+    return doc.error(message, loc, hint)
 
 
 def _validate(doc: Document, data: Any, model: type[BaseModel], what: str) -> Any:
