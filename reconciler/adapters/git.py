@@ -113,6 +113,10 @@ class GitStore:
                     return str(repo.get_config().get((b"remote", b"origin"), b"url"), "utf-8")
             return None
 
+    def location(self, key: str) -> Path:
+        """Where the key's checkout is (or would be), for messages."""
+        return self._layout.repository_dir(key)
+
     def damage(self, key: str) -> str | None:
         """What is wrong with the key's checkout (adapters.integrity); None when it is sound
         or absent. Reads every byte of its objects, so it is asked before a repository is
