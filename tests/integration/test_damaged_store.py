@@ -11,6 +11,7 @@ the next apply does, and apply fetches it anew and goes on; without network noth
 from __future__ import annotations
 
 import hashlib
+import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import pytest
 from reconciler.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, apps_repo, desired
+from tests.integration.conftest import fleet_state
 
 DAMAGES = ["truncated", "flipped", "index-deleted", "emptied"]
 
@@ -183,3 +185,55 @@ def test_a_saved_plan_made_before_the_damage_fetches_it_anew(
     logs = "".join(p.read_text() for p in (lpam.root / "var/log/lpam").glob("apply-*.log"))
     assert "its copy in the store was damaged" in logs and "fetched anew" in logs
 
+
+def test_the_agent_fetches_a_damaged_source_or_app_repository_anew(
+    car: Lpam, fleet: RepoBuilder, git_daemon: GitDaemon,
+) -> None:
+    assert car("sync").returncode == 0
+    # the source is only read; the app repository's checkout is put back (one step)
+    for key, result in (("@source", "nothing to do"), ("apps", "applied")):
+        damage(car, key, "truncated")
+        done = car("sync")
+        assert done.returncode == 0, done.stderr
+        assert f"repository {key}: its copy in the store was damaged" in done.stderr
+        assert car.events() == ["alpha:install:one", "alpha:start:one"]
+        status = json.loads((car.root / "var/lib/lpam/status.json").read_text())
+        assert status["last_attempt"]["result"] == result
+
+
+def test_the_agent_without_network_is_offline_not_failed(
+    car: Lpam, fleet: RepoBuilder, git_daemon: GitDaemon,
+) -> None:
+    """A damaged copy is not the revision's fault: it is tried again once there is
+    network, not marked failed for good."""
+    assert car("sync").returncode == 0
+    damage(car, "@source", "truncated")
+    git_daemon.stop()
+    done = car("sync", "--network-timeout", "5")
+    assert done.returncode == 0, done.stderr
+    status = json.loads((car.root / "var/lib/lpam/status.json").read_text())
+    assert status["last_attempt"]["result"] == "offline"
+    assert "its copy in the store is damaged" in status["last_attempt"]["reason"]
+    assert car.events() == ["alpha:install:one", "alpha:start:one"]
+
+
+def test_a_new_revision_meeting_a_damaged_copy_offline_is_tried_again_later(
+    car: Lpam, fleet: RepoBuilder, git_daemon: GitDaemon,
+) -> None:
+    """What WiFi brought at the end of a trip (`sync --fetch-only`) is applied offline at
+    the next start; a damaged app repository then stops it, but the revision is not
+    marked failed: the next pass with network fetches the copy anew and applies it."""
+    assert car("sync").returncode == 0
+    fleet.commit("faster", {"desired-state.yaml": fleet_state("alpha", MODE="two")})
+    fleet.push()
+    assert car("sync", "--fetch-only").returncode == 0
+    damage(car, "apps", "truncated")
+    git_daemon.stop()
+    done = car("sync", "--network-timeout", "5")
+    assert done.returncode == 0, done.stderr
+    status = json.loads((car.root / "var/lib/lpam/status.json").read_text())
+    assert (status["last_attempt"]["result"], status["last_attempt"]["revision"]) == (
+        "offline", fleet.rev("HEAD"))
+    assert "repository apps: its copy in the store is damaged" in \
+        status["last_attempt"]["reason"]
+    assert car.events() == ["alpha:install:one", "alpha:start:one"]
