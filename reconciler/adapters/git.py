@@ -55,6 +55,7 @@ from dulwich.repo import Repo
 from reconciler.adapters import integrity
 from reconciler.adapters.objectsize import object_size
 from reconciler.adapters.remote import RemoteRefs, Transport
+from reconciler.adapters.wire import durable
 from reconciler.atomic import fsync_dir, write_atomic
 from reconciler.errors import (
     GitError,
@@ -303,10 +304,12 @@ class GitStore:
             fsync_dir(dest.parent)
         wanted = {ObjectID(c.encode("ascii")) for c in commits}
         with Repo(str(dest)) as repo:
+            durable(repo)
             missing = {c for c in wanted if c not in repo.object_store}
             if missing:
                 count, records = source.generate_pack_data(have=set(), want=missing)
                 repo.object_store.add_pack_data(count, records)
+                fsync_dir(dest / ".git" / "objects" / "pack")  # before refs name them
             if self.origin_url(key) == url:
                 for name, commit in branches.items():
                     repo.refs[Ref(name.encode())] = ObjectID(commit.encode("ascii"))
@@ -333,6 +336,7 @@ class GitStore:
             commit.commit_time = commit.author_time = int(time.time())
             commit.commit_timezone = commit.author_timezone = 0
             commit.message = message.encode("utf-8")
+            durable(repo)
             for obj in (blob, tree, commit):
                 repo.object_store.add_object(obj)
             self._transport.push(repo, url, f"refs/heads/{branch}", commit.id.decode("ascii"))

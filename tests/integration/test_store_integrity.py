@@ -4,6 +4,7 @@ real clone, damaged file by file as a power cut or a failing SD card would."""
 
 from __future__ import annotations
 
+import os
 import zlib
 from collections.abc import Callable
 from pathlib import Path
@@ -123,3 +124,33 @@ def test_each_damage_is_named_and_no_read_escapes(
         except LpamError:
             pass  # e.g. RefNotFoundError: the commit reads as absent
         # anything else (ChecksumMismatch, zlib.error, AssertionError…) fails the test
+
+
+def test_a_fetch_makes_its_pack_durable_before_refs_name_it(
+    tmp_path: Path, make_repo: Callable[[str], RepoBuilder],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The fetch child fsyncs the pack, its index and the folder their renames changed
+    before it answers and the parent writes refs: a pack left in the page cache by a power
+    cut comes back empty, and refs naming it are the damage above (run in this process, so
+    that its fsyncs can be seen)."""
+    from reconciler.adapters import wire
+
+    repo = make_repo("apps.git")
+    apps_repo(repo)
+    dest = tmp_path / "clone"
+    Repo.init(str(dest), mkdir=True).close()
+    synced: list[str] = []
+    real = os.fsync
+
+    def fsync(fd: int) -> None:
+        synced.append(os.readlink(f"/proc/self/fd/{fd}"))
+        real(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    wire.fetch(str(repo.bare), str(dest))
+    packs = str(dest / ".git" / "objects" / "pack")
+    # dulwich fsyncs each file under its temporary name, before renaming it into place
+    pack = next(i for i, p in enumerate(synced) if p.startswith(packs) and p.endswith(".pack"))
+    index = next(i for i, p in enumerate(synced) if p.startswith(packs) and ".idx" in p)
+    assert synced[-1] == packs and pack < index < len(synced) - 1, synced
