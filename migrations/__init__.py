@@ -56,7 +56,7 @@ _NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
 _LABELS = {"desired-state": "desired state", "state-record": "state record", "plan": "plan",
            "agent-config": "agent configuration", "agent-status": "agent status"}
 
-Position = Callable[[Sequence[str | int]], tuple[int, int]]
+Position = Callable[[Sequence[str | int]], tuple[int, int] | tuple[None, None]]
 
 
 def upgrade(

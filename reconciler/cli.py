@@ -66,6 +66,9 @@ WAIT_OPTIONS: dict[str, Any] = {
     "type": float, "default": 0.0, "metavar": "SECONDS",
     "help": "wait up to SECONDS for closed update gates to open before the cutover; still "
             "closed: exit 75, deferred (default 0)"}
+VALIDATE_KINDS = ("desired-state", "catalog", "repository", "agent", "plan")
+"""The values of reconciler.validation.Kind, spelled out: the parser is built before any
+command runs, and `lpam --version` must not import the schemas."""
 FORCE = ("--force",)
 FORCE_OPTIONS: dict[str, Any] = {
     "action": "store_true", "help": "ignore the update gates (the vehicle may be moving)"}
@@ -218,8 +221,10 @@ def _parser() -> argparse.ArgumentParser:
                           help="shutdown: stop the supervisord lpam started for this root")
 
     validate = sub.add_parser("validate", parents=[common],
-                              help="check a desired state, a catalog or an app repository")
+                              help="check any document lpam reads, by the kind its keys show")
     validate.add_argument("path", type=Path)
+    validate.add_argument("--kind", choices=VALIDATE_KINDS,
+                          help="read PATH as this kind instead of deciding from its keys")
 
     imp = sub.add_parser("import-lpam", parents=[common],
                          help="write a desired state equivalent to an LPAM installation")
@@ -744,9 +749,9 @@ def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_validate(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.validation import validate
+    from reconciler.validation import Kind, validate
 
-    print(validate(Path(args.path)))
+    print(validate(Path(args.path), None if args.kind is None else Kind(args.kind)))
     return EXIT_OK
 
 

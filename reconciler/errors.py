@@ -101,6 +101,24 @@ class GitError(LpamError):
     """Talking to a git repository failed: unreachable server, bad URL, corrupt store."""
 
 
+class StoreDamagedError(GitError):
+    """A repository's copy in the store is damaged: a truncated or overwritten pack, a lost
+    pack index, refs naming objects that are gone (what a power cut or a failing SD card
+    leaves). The store is a cache of the remotes, so nothing reads a damaged copy: status
+    notes it, plan refuses it, and apply fetches the repository anew, keeping the damaged
+    copy aside."""
+
+    def __init__(self, key: str, damage: str, *, path: Path | None = None,
+                 hint: str | None = None, after: str = "") -> None:
+        where = f" ({path})" if path is not None else ""
+        super().__init__(
+            f"repository {key}: its copy in the store is damaged: {damage}{where}{after}",
+            hint=hint or "the store is a cache: the next `lpam apply` moves the damaged copy "
+            "aside and fetches the repository anew; nothing was changed")
+        self.key = key
+        self.damage = damage
+
+
 class RefNotFoundError(GitError):
     """The requested branch, tag or commit does not exist in the repository."""
 

@@ -12,7 +12,9 @@ cannot know the app's unit, the record's word is shown, marked unverified.
 
 What a repository holds is shown, so it is not trusted: a file too large is left out
 rather than failing the whole answer, and the table replaces control characters (a
-description could otherwise send escape sequences to the operator's terminal).
+description could otherwise send escape sequences to the operator's terminal). A
+repository whose copy in the store is damaged keeps its row, saying so, and the others
+are shown as ever: status must answer most when something is wrong.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from reconciler.documents import parse_catalog
-from reconciler.errors import ConfigError, GitError
+from reconciler.errors import ConfigError, GitError, StoreDamagedError
 from reconciler.layout import Layout
 from reconciler.state import read_agent_status, read_record
 from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
@@ -45,6 +47,8 @@ class Objects(Protocol):
 
     def read_file(self, key: str, commit: str, path: str) -> bytes | None: ...
 
+    def damage(self, key: str) -> str | None: ...
+
 
 @dataclass(frozen=True)
 class Row:
@@ -58,6 +62,7 @@ class Row:
     status: str | None  # the installed app's lifecycle (schemas.record.AppStatus), else None
     description: str
     verified: bool | None = None  # running asked of the service manager (None: not installed)
+    damage: str | None = None  # what is wrong with the repository's copy in the store
 
 
 def _folder_files(store: Objects, key: str, commit: str, folder: str) -> dict[str, bytes]:
@@ -115,10 +120,17 @@ def _status(installed: AppRecord, runs: bool) -> str:
     return status
 
 
-def _note(common: dict[str, str], description: str) -> Row:
+def _note(common: dict[str, str], description: str, damage: str | None = None) -> Row:
     return Row(repository=common["repository"], ref=common["ref"], commit=common["commit"],
                app="-", service="-", installed=False, running=False, status=None,
-               description=description)
+               description=description, damage=damage)
+
+
+def _damaged(common: dict[str, str], damage: str) -> Row:
+    """The row of a repository whose copy in the store is damaged; the damage itself is
+    said in full under the table (a cell holds 80 characters)."""
+    return _note(common, "(damaged in the store: the next `lpam apply` fetches it anew)",
+                 damage)
 
 
 def rows(
@@ -138,8 +150,15 @@ def rows(
     for repo in record.repositories:
         common = {"repository": repo.key, "ref": repo.ref or "(default)",
                   "commit": repo.commit[:12]}
-        if not store.has_commit(repo.key, repo.commit):
-            table.append(_note(common, "(commit missing from the repository store)"))
+        try:
+            present = store.has_commit(repo.key, repo.commit)
+        except StoreDamagedError as exc:
+            table.append(_damaged(common, exc.damage))
+            continue
+        if not present:  # a lost pack or index hides commits without any read failing
+            damage = store.damage(repo.key)
+            table.append(_note(common, "(commit missing from the repository store)")
+                         if damage is None else _damaged(common, damage))
             continue
         try:
             data = store.read_file(repo.key, repo.commit, CATALOG_FILE)
@@ -271,6 +290,9 @@ def as_table(layout: Layout, *, store: Objects | None = None,
     strays = [f"Installed without a record: {_cell(s.name)} (generation "
               f"{_cell(s.generation)}); `lpam apply` stops and uninstalls it before "
               "installing any app." for s in record.strays]
+    strays += [f"Repository {_cell(r.repository)}: its copy in the store is damaged: "
+               f"{_printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
+               "anew." for r in table if r.damage is not None]
     strays += _footer(layout, record, live, manager) + _agent_footer(layout)
     deferred = _deferred(layout)
     if deferred is not None:

@@ -14,7 +14,10 @@ and kills its own group, so no ssh or fetch outlives lpam.
 
 A fetch only adds a pack to the repository's object store (dulwich writes it to a temporary
 file and renames it into place when complete); the parent writes refs after the child has
-succeeded, so a child killed half-way changes nothing that lpam reads.
+succeeded, so a child killed half-way changes nothing that lpam reads. The pack, its index
+and their folder are fsynced before the child answers: refs written after a power cut
+must not name objects the cut took back (a pack still in the page cache comes back empty,
+and the store would be damaged).
 """
 
 from __future__ import annotations
@@ -27,14 +30,17 @@ import sys
 import threading
 from collections.abc import Callable, Iterator, Mapping
 from collections.abc import Set as AbstractSet
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
 from dulwich.errors import GitProtocolError, NotGitRepository
-from dulwich.object_store import peel_sha
+from dulwich.object_store import DiskObjectStore, peel_sha
 from dulwich.objects import ObjectID
 from dulwich.refs import Ref
 from dulwich.repo import Repo
+
+from reconciler.atomic import fsync_dir
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -85,15 +91,27 @@ def fetch(url: str, repo_path: str, skip: str = "") -> dict[str, Any]:
         return _is_tip(name) and not (skipped and name.startswith(skipped))
 
     with Repo(repo_path) as repo:
+        durable(repo)
 
         def wanted(refs: Mapping[Ref, ObjectID | None], depth: int | None = None) -> list[ObjectID]:
             tips = [sha for name, sha in refs.items() if kept(name) and sha is not None]
             return [sha for sha in dict.fromkeys(tips) if sha not in repo.object_store]
 
         result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)
+    packs = os.path.join(repo_path, ".git", "objects", "pack")
+    if os.path.isdir(packs):
+        fsync_dir(Path(packs))  # the renames that put the pack and its index in place
     refs = {name: sha for name, sha in _text_refs(result.refs).items()
             if not name.endswith(_PEELED.decode()) and not (skip and name.startswith(skip))}
     return {"refs": refs}
+
+
+def durable(repo: Repo) -> None:
+    """Have `repo` fsync each pack, pack index and loose object it writes (git's
+    core.fsyncObjectFiles), so that what names them later is never written first."""
+    store = repo.object_store
+    if isinstance(store, DiskObjectStore):
+        store.fsync_object_files = True
 
 
 def push(url: str, repo_path: str, ref: str, new: str) -> dict[str, Any]:

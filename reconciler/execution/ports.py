@@ -20,9 +20,19 @@ if TYPE_CHECKING:
 
 
 class Store(Protocol):
-    """The repository store: one checkout per app repository, objects fetched from remotes."""
+    """The repository store: one checkout per app repository, objects fetched from remotes.
+
+    It is a cache of the remotes: a read of a damaged checkout raises StoreDamagedError
+    naming it; `damage` says what is wrong (None: sound or absent) without raising, and
+    `renew` fetches the repository afresh in place of its checkout, keeping the old one
+    aside (its path; None when there was none) and moving nothing when the fetch fails.
+    `remove` of a damaged checkout keeps it aside as well."""
 
     def origin_url(self, key: str) -> str | None: ...
+
+    def damage(self, key: str) -> str | None: ...
+
+    def renew(self, key: str, url: str) -> Path | None: ...
 
     def has_commit(self, key: str, commit: str) -> bool: ...
 

@@ -26,7 +26,15 @@ from pathlib import Path
 from typing import Literal
 
 from reconciler import generations
-from reconciler.errors import DependencyError, GitError, HealthError, ServiceError, StepError
+from reconciler.errors import (
+    DependencyError,
+    GitError,
+    HealthError,
+    ServiceError,
+    StepError,
+    StoreDamagedError,
+)
+from reconciler.execution import cache
 from reconciler.execution.context import Context
 from reconciler.execution.supervision import await_unit, log_tail, runtime, settle, unit_for
 from reconciler.generations import Generation
@@ -58,7 +66,12 @@ def check_out(step: Step, ctx: Context) -> None:
     """The checkout's work on its own repository, which touches nothing another
     repository's checkout does: the executor runs several at once (record_checkout after)."""
     key, url, commit = _arg(step, "key"), _arg(step, "url"), _arg(step, "commit")
-    if ctx.store.origin_url(key) != url or not ctx.store.has_commit(key, commit):
+    try:
+        present = ctx.store.origin_url(key) == url and ctx.store.has_commit(key, commit)
+    except StoreDamagedError as exc:  # since a saved plan was made: the store is a cache
+        ctx.log(cache.renew(ctx.store, key, url, exc.damage))
+        present = ctx.store.has_commit(key, commit)
+    if not present:
         ctx.store.fetch(key, url)
     if ctx.store.head(key) != commit:
         ctx.store.checkout(key, commit)

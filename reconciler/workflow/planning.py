@@ -74,7 +74,8 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     if hold is not None:  # a rollback holds: nothing to resolve, no network needed
         return store, _held_plan(machine, store, record, hold, report)
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
-                      default_user=libpanda_user(layout), root=layout.root)
+                      default_user=libpanda_user(layout), root=layout.root,
+                      notice=lambda text: report(Note(text)))
     report(Phase("resolve"))
     needs = targets.app is not None and bool(targets.app.deps.how)  # apt, pip or ROS
     observed = observe(layout, store, targets,

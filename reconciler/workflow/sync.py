@@ -10,7 +10,10 @@ phase fails on its own, and never at the running app's expense:
   new one arrives — a broken commit must not restart the car's app every five minutes;
 - `fetch_only`: fetch the source and the commits it pins, record, change nothing (the
   pass at shutdown, so that what WiFi brought at the end of a trip applies at the next
-  start).
+  start);
+- a damaged copy in the repository store (the source's or an app repository's) is fetched
+  anew, as apply does; with no network to do so the pass is "offline", not failed: the
+  revision is not at fault, and the next pass with network tries it again.
 
 Relative `url:` paths in the desired state resolve against the source repository's own
 URL, as git resolves a submodule's (`../apps.git` beside the fleet repository, on the
@@ -33,6 +36,7 @@ from reconciler.errors import (
     HealthError,
     LpamError,
     StopRequested,
+    StoreDamagedError,
     TrustError,
 )
 from reconciler.workflow.applying import ApplyOptions, apply
@@ -93,7 +97,11 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
         unpack(machine, bundle, config.source.url, config.source.branch)
         offline: str | None = f"from the bundle {bundle}"
     else:
-        offline = _fetch(machine, config, report)
+        try:
+            offline = _fetch(machine, config, report)
+        except StoreDamagedError as exc:
+            report(Note(f"offline: {exc.message}"))
+            return _record(machine, status, Synced("offline", None, exc.message, exc.hint))
         if offline is None:
             online.append(True)
     revision = _tip(machine, config)
@@ -126,6 +134,8 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     except Deferred as exc:  # prepared, not cut over: the next pass tries again
         report(Note(exc.message))
         return _record(machine, status, Synced("deferred", revision, exc.message))
+    except StoreDamagedError as exc:  # and no network to fetch it anew
+        return _record(machine, status, Synced("offline", revision, exc.message, exc.hint))
     except LpamError as exc:
         failed: Result = "rolled back" if isinstance(exc, HealthError) else "failed"
         return _record(machine, status, Synced(failed, revision, _reason(exc), exc.hint))
@@ -202,12 +212,17 @@ def vehicle_id(machine: Machine, config: AgentConfig) -> str:
 def _fetch(machine: Machine, config: AgentConfig, report: Report) -> str | None:
     """Fetch the source under the lock (a fetch is a write); the reason when offline."""
     from reconciler.execution.lock import apply_lock
+    from reconciler.observe.targets import sound_copy
 
     try:
         with apply_lock(machine.layout, timeout=60.0):
+            store = machine.store()
+            sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
+                       notice=lambda text: report(Note(text)))
             # the other cars' status branches are not this car's business
-            machine.store().fetch(SOURCE_KEY, config.source.url,
-                                  skip="refs/heads/" + STATUS_PREFIX)
+            store.fetch(SOURCE_KEY, config.source.url, skip="refs/heads/" + STATUS_PREFIX)
+    except StoreDamagedError:
+        raise  # its copy cannot be read: `_pass` records the pass as offline
     except GitError as exc:
         report(Note(f"offline: {exc.message}"))
         return exc.message
