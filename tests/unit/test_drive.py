@@ -1,8 +1,9 @@
 """The generated drive (tests/drive.py) is what the gate tests take it for: the profile's
 stops where its docstring says, the RAV4's SPEED layout as cantools reads it from opendbc's
 definition (not as lpam's own decoder does, which it tests), every id at its period, ids
-besides SPEED that a reader which forgot to filter would misread, and the same bytes on
-every run and every machine."""
+besides SPEED that a reader which forgot to filter would misread, the same bytes on every
+run and every machine — and, where `../shared/data` lies beside the checkout, the shape of
+the real drive it stands in for (skipped, saying why, elsewhere)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import itertools
 import os
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import can
@@ -19,6 +21,7 @@ import pytest
 from cantools.database.can import Database
 
 from tests import drive
+from tests.canlog import recorded_drive
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -57,11 +60,13 @@ def test_the_toyota_checksum_worked_by_hand() -> None:
     assert drive.speed_data(57.73, 0x9F) == bytes.fromhex("000000009F168DFE")
 
 
-def standing_runs(threshold: float = 0.5) -> list[tuple[float, float]]:
-    """(first, last) sample time of each run of samples at or below `threshold` km/h, as
-    the gate's tracker counts a standstill."""
+def standing_runs(samples: Sequence[tuple[float, float]] | None = None,
+                  threshold: float = 0.5) -> list[tuple[float, float]]:
+    """(first, last) time of each run of speed samples (time, km/h; the generated drive's
+    unless given) at or below `threshold` km/h, as the gate's tracker counts a standstill."""
     runs = []
-    for low, group in itertools.groupby(drive.speeds(), key=lambda s: s[1] <= threshold):
+    for low, group in itertools.groupby(drive.speeds() if samples is None else samples,
+                                        key=lambda s: s[1] <= threshold):
         if low:
             times = [t for t, _ in group]
             runs.append((round(times[0], 2), round(times[-1], 2)))
@@ -133,3 +138,28 @@ def test_the_same_bytes_in_another_process_with_another_hash_seed(tmp_path: Path
         return hashlib.sha256(path.read_bytes()).hexdigest()
 
     assert digest(tmp_path / "there.log.gz") == digest(here)
+
+
+def test_it_is_shaped_like_the_recorded_drive() -> None:
+    """The real drive's standstills of 10 s or more — before it leaves, at the light,
+    parked — begin and end within 3 s of the generated one's; both have a short stop on the
+    way out and one in the car park; their top speeds are within 0.5 km/h; both carry 70-90
+    frames a second."""
+    real = recorded_drive()
+    start = real[0].timestamp
+    samples = [(m.timestamp - start, int.from_bytes(m.data[5:7], "big") * 0.01)
+               for m in real if m.arbitration_id == drive.SPEED_ID]
+    theirs, ours = standing_runs(samples), standing_runs()
+
+    def long(runs: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        return [(a, b) for a, b in runs if b - a >= 10]
+
+    assert len(long(theirs)) == len(long(ours)) == 3
+    for (a, b), (c, d) in zip(long(theirs), long(ours), strict=True):
+        assert abs(a - c) <= 3 and abs(b - d) <= 3, ((a, b), (c, d))
+    for runs in (theirs, ours):
+        assert any(a > 121 and b < 160 for a, b in runs if b - a < 10)  # on the way out
+        assert any(a > 640 and b < 668 for a, b in runs if b - a < 10)  # in the car park
+    assert max(s for _, s in samples) == pytest.approx(max(s for _, s in drive.speeds()),
+                                                       abs=0.5)
+    assert 70 < len(real) / (real[-1].timestamp - start) < 90
