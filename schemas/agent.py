@@ -1,5 +1,6 @@
 """The agent's configuration (`<root>/etc/lpam/agent.yaml`) and what it records of its
-passes (`<root>/var/lib/lpam/status.json`).
+passes (`<root>/var/lib/lpam/status.json`, also the body of the branch `status/<vehicle>`
+it publishes, see reconciler/publication.py).
 
 ```yaml
 version: 1
@@ -11,6 +12,10 @@ trust: {allowed_signers: /etc/lpam/allowed_signers}   # optional: signed commits
 
 In the source repository, `vehicles/<id>.yaml` is this vehicle's desired state when it
 exists, else `desired-state.yaml` at its root.
+
+The agent status is a document lpam writes, so it changes only through a version and a
+migration (migrations/agent_status_v1_to_v2.py): version 2 names the result `deferred`,
+the file the vehicle follows (`follows`) and its last publication (`publication`).
 """
 
 from __future__ import annotations
@@ -118,19 +123,40 @@ class Attempt(BaseModel):
     reason: str | None = None
 
 
+Published = Literal["pushed", "refused", "failed"]
+
+
+class Publication(BaseModel):
+    """The last attempt to publish this status to `status/<vehicle>`: when, the fingerprint
+    of what counted in it (reconciler/publication.py), and whether the fleet repository
+    took it (`pushed`), refused pushes from this car (`refused`: read-only, no write
+    access), or could not be reached (`failed`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    time: str
+    fingerprint: str
+    result: Published
+    reason: str | None = None
+
+
 class AgentStatus(BaseModel):
     """What the agent knows of its source: the revision it would apply, the last one it
-    applied, the last attempt (a failed revision is not tried again until a new one
-    arrives), and the last passes."""
+    applied, the file of the source it follows, the last attempt (a failed revision is not
+    tried again until a new one arrives), the last passes, and its last publication."""
 
     model_config = ConfigDict(extra="forbid")
 
-    version: Literal[1] = 1
+    version: Literal[2] = 2
     vehicle: str | None = None
+    follows: str | None = Field(
+        default=None, description="the desired-state file of the source this vehicle "
+        "follows at desired_revision: vehicles/<id>.yaml or desired-state.yaml")
     desired_revision: str | None = None
     applied_revision: str | None = None
     last_attempt: Attempt | None = None
     passes: list[Attempt] = Field(default_factory=list)
+    publication: Publication | None = None
 
     def failed(self, revision: str) -> bool:
         """Whether `revision` was tried and failed (so it is not tried again)."""
