@@ -7,6 +7,7 @@ version: 1
 source: {url: "https://github.com/our-lab/fleet-state", branch: main}
 vehicle_file: /etc/libpanda.d/vin      # or `vehicle: rav4-07`; default: the hostname
 interval_seconds: 300
+heartbeat_seconds: 21600               # publish an unchanged status this often (6 h)
 trust: {allowed_signers: /etc/lpam/allowed_signers}   # optional: signed commits only
 ```
 
@@ -87,6 +88,11 @@ class AgentConfig(BaseModel):
         default=None, description="a file holding the id (e.g. /etc/libpanda.d/vin)")
     interval_seconds: float = Field(default=300, ge=10, le=86400,
                                     description="seconds between passes of `lpam agent`")
+    heartbeat_seconds: float = Field(
+        default=6 * 3600, ge=300, le=7 * 86400,
+        description="publish this vehicle's status at least this often even when it did not "
+        "change, so that the fleet sees the car is alive (between 5 minutes and 7 days; "
+        "at least interval_seconds)")
     trust: Trust | None = Field(default=None, description="apply only signed commits")
     gate_wait_seconds: float = Field(
         default=0, ge=0, le=3600, description="how long a pass may wait for closed update "
@@ -105,6 +111,16 @@ class AgentConfig(BaseModel):
             raise ValueError("vehicle_file must be an absolute path without '..'")
         if value is not None and info.data.get("vehicle") is not None:
             raise ValueError("give `vehicle:` or `vehicle_file:`, not both")
+        return value
+
+    @field_validator("heartbeat_seconds")
+    @classmethod
+    def _heartbeat(cls, value: float, info: ValidationInfo) -> float:
+        interval = info.data.get("interval_seconds")
+        if interval is not None and value < interval:
+            raise ValueError(f"{value:g} is shorter than interval_seconds "
+                             f"({interval:g}): every pass would publish; give at least the "
+                             "interval (the default is 21600, 6 hours)")
         return value
 
 
