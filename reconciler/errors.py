@@ -94,6 +94,12 @@ class GitError(LpamError):
     """Talking to a git repository failed: unreachable server, bad URL, corrupt store."""
 
 
+class PushRefusedError(GitError):
+    """The repository does not accept a push from this machine: read-only (a mirror, git
+    daemon without receive-pack), no write access (a read-only token or deploy key), or a
+    protected branch. Unlike a network failure, asking again soon cannot help."""
+
+
 class RefNotFoundError(GitError):
     """The requested branch, tag or commit does not exist in the repository."""
 
