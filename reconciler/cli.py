@@ -694,8 +694,9 @@ def cmd_fleet(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow import fleet
 
     tip, rows = fleet.read(args.repo, args.branch)
-    print(json.dumps(fleet.as_json(tip, rows), indent=2) if args.json
-          else fleet.as_table(tip, rows))
+    at = now()  # the ages of the reports are measured against this machine's clock
+    print(json.dumps(fleet.as_json(tip, rows, now=at), indent=2) if args.json
+          else fleet.as_table(tip, rows, now=at))
     return EXIT_OK
 
 

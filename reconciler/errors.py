@@ -119,6 +119,12 @@ class StoreDamagedError(GitError):
         self.damage = damage
 
 
+class PushRefusedError(GitError):
+    """The repository does not accept a push from this machine: read-only (a mirror, git
+    daemon without receive-pack), no write access (a read-only token or deploy key), or a
+    protected branch. Unlike a network failure, asking again soon cannot help."""
+
+
 class RefNotFoundError(GitError):
     """The requested branch, tag or commit does not exist in the repository."""
 

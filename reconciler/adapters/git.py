@@ -34,7 +34,6 @@ import os
 import shutil
 import stat
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -341,12 +340,13 @@ class GitStore:
                     repo.refs[Ref(name.encode())] = ObjectID(commit.encode("ascii"))
 
     def push_file(self, key: str, url: str, branch: str, name: str, content: bytes,
-                  message: str) -> str:
-        """Commit `content` as the only file `name` of `branch` (on top of the branch as the
-        last fetch saw it on origin) and push it to `url`; the new commit. Nothing in the
-        checkout moves: the commit is made from objects alone."""
-        from dulwich.objects import Commit
-
+                  message: str, *, when: int, parent: bool = True) -> str:
+        """Commit `content` as the only file `name` of `branch` and push it to `url`; the
+        new commit. With `parent`, the commit goes on top of the branch as the last fetch or
+        push saw it on origin; without, it starts the branch afresh (the server decides
+        whether it accepts that, see `Transport.push`). `when` is the commit's time (epoch
+        seconds, from the caller's clock). Nothing in the checkout moves: the commit is
+        made from objects alone."""
         with self._open(key) as repo:
             if repo is None:
                 raise GitError(f"{key} is not in the repository store")
@@ -355,11 +355,11 @@ class GitStore:
             tree.add(name.encode("utf-8"), 0o100644, blob.id)
             commit = Commit()
             commit.tree = tree.id
-            parent = repo.refs.as_dict(Ref(b"refs/remotes/origin")).get(Ref(branch.encode()))
-            commit.parents = [parent] if parent is not None and parent in repo.object_store \
+            tip = repo.refs.as_dict(Ref(b"refs/remotes/origin")).get(Ref(branch.encode()))
+            commit.parents = [tip] if parent and tip is not None and tip in repo.object_store \
                 else []
             commit.author = commit.committer = b"lpam <lpam@localhost>"
-            commit.commit_time = commit.author_time = int(time.time())
+            commit.commit_time = commit.author_time = when
             commit.commit_timezone = commit.author_timezone = 0
             commit.message = message.encode("utf-8")
             durable(repo)
@@ -368,6 +368,23 @@ class GitStore:
             self._transport.push(repo, url, f"refs/heads/{branch}", commit.id.decode("ascii"))
             repo.refs[Ref(f"refs/remotes/origin/{branch}".encode())] = commit.id
             return commit.id.decode("ascii")
+
+    def history_length(self, key: str, branch: str, *, limit: int) -> int:
+        """How many commits origin's `branch` holds as this store last saw it, counted along
+        first parents up to `limit` (0 without the branch): enough to bound a branch this
+        machine writes itself, with no network."""
+        with self._open(key) as repo:
+            if repo is None:
+                return 0
+            sha = repo.refs.as_dict(Ref(b"refs/remotes/origin")).get(Ref(branch.encode()))
+            count = 0
+            while sha is not None and count < limit:
+                found = _commit(repo, sha.decode("ascii"))
+                if found is None:
+                    break
+                count += 1
+                sha = found.parents[0] if found.parents else None
+            return count
 
     def fetch_objects(self, key: str, url: str) -> None:
         """Bring `url`'s commits into the key's object database for a plan to read, moving

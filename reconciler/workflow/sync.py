@@ -35,6 +35,7 @@ from reconciler.errors import (
     GitError,
     HealthError,
     LpamError,
+    PushRefusedError,
     StopRequested,
     StoreDamagedError,
     TrustError,
@@ -42,7 +43,16 @@ from reconciler.errors import (
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.machine import Machine
-from schemas.agent import PASSES_KEPT, AgentConfig, AgentStatus, Attempt, Result, check_vehicle
+from schemas.agent import (
+    PASSES_KEPT,
+    AgentConfig,
+    AgentStatus,
+    Attempt,
+    Publication,
+    Published,
+    Result,
+    check_vehicle,
+)
 
 if TYPE_CHECKING:
     from schemas.desired import DesiredState
@@ -109,6 +119,7 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     if revision is None:
         why = offline or f"the source has no branch {config.source.branch!r}"
         return _record(machine, status, Synced("offline" if offline else "failed", None, why))
+    status = status.model_copy(update={"follows": followed(machine, vehicle, revision)})
     if fetch_only:
         return _record(machine, status, _fetch_pins(machine, config, vehicle, revision, report))
     if offline and bundle is None and revision == status.applied_revision:
@@ -124,11 +135,11 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
         return _record(machine, status, Synced("nothing to do", revision,
                                                "this revision failed before"))
     try:
-        followed = _desired(machine, config, vehicle, revision,
-                            keep=frozenset(filter(None, [status.applied_revision])))
-        done = apply(machine, followed.label, followed.desired, options=options,
+        chosen = _desired(machine, config, vehicle, revision,
+                          keep=frozenset(filter(None, [status.applied_revision])))
+        done = apply(machine, chosen.label, chosen.desired, options=options,
                      confirm=lambda plan: True, report=report, local=offline is not None,
-                     base_dir=followed.base_dir)
+                     base_dir=chosen.base_dir)
     except StopRequested as exc:  # not a failure: the next pass tries the revision again
         return _record(machine, status, Synced("stopped", revision, exc.message))
     except Deferred as exc:  # prepared, not cut over: the next pass tries again
@@ -165,25 +176,74 @@ STATUS_FILE = "status.json"
 
 
 def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
-    """Push this vehicle's status to `status/<vehicle>` of the source, so that `lpam fleet
-    status` in any clone shows the whole fleet from git alone. A source that refuses pushes
-    (a read-only mirror, a GitHub token without write access) costs a note, nothing more."""
+    """Push this vehicle's status to `status/<vehicle>` of the source when it is due
+    (reconciler/publication.py: changed, or the heartbeat), so that `lpam fleet status` in
+    any clone shows the whole fleet from git alone; an unchanged status costs no connection
+    and no commit. The branch holds at most `HISTORY` commits. A source that refuses pushes
+    (a read-only mirror, a token without write access) costs a note, nothing more: the car
+    keeps working and its status stays local."""
     from reconciler import status as machine_status
+    from reconciler.atomic import write_atomic
+    from reconciler.publication import APP_FIELDS, due, fingerprint
 
     own = read_status(machine)
     if own.vehicle is None:
         return
     app = machine_status.as_json(machine.layout, state=machine.services.state)["app"]
-    body = {"agent": own.model_dump(mode="json"),
-            "app": None if app is None else {k: app[k] for k in
-                                             ("name", "generation", "status", "running")}}
+    shown = None if app is None else {k: app[k] for k in APP_FIELDS}
+    now = machine.clock()
+    mark = fingerprint(own, shown)
+    why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
+    if why is None:
+        return
+    body = {"agent": own.model_dump(mode="json"), "app": shown}
     text = json.dumps(body, indent=2, sort_keys=True) + "\n"
+    branch = STATUS_PREFIX + own.vehicle
+    result: Published = "pushed"
+    reason = None
     try:
-        machine.store().push_file(SOURCE_KEY, config.source.url, STATUS_PREFIX + own.vehicle,
-                                  STATUS_FILE, text.encode("utf-8"),
-                                  f"status of {own.vehicle}")
+        _push(machine, config, branch, text.encode("utf-8"), when=int(now.timestamp()),
+              report=report)
+        report(Progress(f"status published to {branch} ({why})"))
+    except PushRefusedError as exc:
+        result, reason = "refused", exc.message
+        report(Note(f"status not published: the fleet repository is read-only for this car "
+                    f"— {exc.message}. The car keeps working; its status stays local "
+                    "(`lpam status`) and is offered again when it changes or in "
+                    f"{config.heartbeat_seconds / 3600:g} h"))
     except LpamError as exc:
-        report(Note(f"status not published: {exc.message}"))
+        result, reason = "failed", exc.message
+        report(Note(f"status not published: {exc.message}. The car keeps working; its "
+                    "status stays local (`lpam status`) and is offered again next pass"))
+    done = Publication(time=now.isoformat(timespec="seconds"), fingerprint=mark,
+                       result=result, reason=reason)
+    write_atomic(machine.layout.agent_status,
+                 own.model_copy(update={"publication": done}).model_dump_json(indent=2) + "\n")
+
+
+def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *, when: int,
+          report: Report) -> None:
+    """One status commit on `branch`, on top of its tip while it holds fewer than `HISTORY`
+    commits, else starting it afresh. A server that refuses to rewrite the branch (git's
+    receive.denyNonFastForwards, a protected branch) gets it on top after all: a status
+    published with a growing history is better than none."""
+    from reconciler.publication import HISTORY, keeps_parent
+
+    store = machine.store()
+    length = store.history_length(SOURCE_KEY, branch, limit=HISTORY)
+    keep = keeps_parent(length)
+    vehicle = branch.removeprefix(STATUS_PREFIX)
+    try:
+        store.push_file(SOURCE_KEY, config.source.url, branch, STATUS_FILE, content,
+                        f"status of {vehicle}", when=when, parent=keep)
+    except PushRefusedError:
+        if keep or length == 0:
+            raise
+        store.push_file(SOURCE_KEY, config.source.url, branch, STATUS_FILE, content,
+                        f"status of {vehicle}", when=when, parent=True)
+        report(Note(f"the fleet repository does not let this car rewrite {branch}, so its "
+                    f"history grows past {HISTORY} commits: allow non-fast-forward pushes "
+                    "to status/* (see the README's fleet section)"))
 
 
 def vehicle_id(machine: Machine, config: AgentConfig) -> str:
@@ -249,17 +309,28 @@ class Followed:
     base_dir: Path
 
 
+def followed(machine: Machine, vehicle: str, revision: str) -> str | None:
+    """The file of the source at `revision` that is this vehicle's desired state: its own
+    `vehicles/<id>.yaml`, else the fleet's `desired-state.yaml`; None with neither. Read
+    from trees alone (no file is read), so it is known even when the file has a fault."""
+    store = machine.store()
+    if f"{vehicle}.yaml" in store.folder_files(SOURCE_KEY, revision, VEHICLE_DIR):
+        return f"{VEHICLE_DIR}/{vehicle}.yaml"
+    return DEFAULT_FILE if DEFAULT_FILE in store.folder_files(SOURCE_KEY, revision, "") \
+        else None
+
+
 def _desired(machine: Machine, config: AgentConfig, vehicle: str,
              revision: str, *, keep: frozenset[str] | None = None) -> Followed:
     """This vehicle's desired state at `revision`, relative URLs made absolute and the
     files it names relative to itself copied out of the source (the copies of revisions
     other than those in `keep` removed; None keeps all)."""
-    for name in (f"{VEHICLE_DIR}/{vehicle}.yaml", DEFAULT_FILE):
-        found = desired_at(machine, config.source.url, revision, name)
-        if found is not None:
-            label, desired = found
-            return Followed(label, desired,
-                            _files_of(machine, revision, name, desired, keep=keep))
+    name = followed(machine, vehicle, revision)
+    found = None if name is None else desired_at(machine, config.source.url, revision, name)
+    if found is not None:
+        assert name is not None
+        label, desired = found
+        return Followed(label, desired, _files_of(machine, revision, name, desired, keep=keep))
     raise ConfigError(f"neither {VEHICLE_DIR}/{vehicle}.yaml nor {DEFAULT_FILE} is in the "
                       f"source at {revision[:12]}", path=machine.layout.agent_config,
                       hint=f"commit a desired state for this vehicle ({vehicle}) or for all")
@@ -352,8 +423,8 @@ def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: s
     from reconciler.workflow.planning import plan
 
     try:
-        followed = _desired(machine, config, vehicle, revision)
-        plan(machine, followed.label, followed.desired, report=report)
+        chosen = _desired(machine, config, vehicle, revision)
+        plan(machine, chosen.label, chosen.desired, report=report)
     except LpamError as exc:
         return Synced("fetched", revision, f"the source was fetched; its pins not: "
                       f"{exc.message}")
