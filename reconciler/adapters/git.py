@@ -121,8 +121,9 @@ class GitStore:
 
     def damage(self, key: str) -> str | None:
         """What is wrong with the key's checkout (adapters.integrity); None when it is sound
-        or absent. Reads every byte of its objects, so it is asked before a repository is
-        used (plan, apply), or after a read failed (status), not on every read."""
+        or absent. Reads every byte of the packs lpam did not write itself, so it is asked
+        before a repository is used (plan, apply), or after a read failed (status), not on
+        every read."""
         path = self._layout.repository_dir(key)
         if not (path / ".git").is_dir():
             return None
@@ -271,6 +272,7 @@ class GitStore:
         if current == url:
             with Repo(str(dest)) as repo:
                 self._transport.fetch_into(repo, url, skip=skip)
+            integrity.remember(dest)
             return
         if dest.exists():
             self._refuse_edits(key, "cannot switch it to " + redact(url))
@@ -335,6 +337,7 @@ class GitStore:
                 count, records = source.generate_pack_data(have=set(), want=missing)
                 repo.object_store.add_pack_data(count, records)
                 fsync_dir(dest / ".git" / "objects" / "pack")  # before refs name them
+                integrity.remember(dest)
             if self.origin_url(key) == url:
                 for name, commit in branches.items():
                     repo.refs[Ref(name.encode())] = ObjectID(commit.encode("ascii"))
@@ -397,6 +400,7 @@ class GitStore:
             return
         with Repo(str(dest)) as repo:
             self._transport.fetch_into(repo, url, mirror=False)
+        integrity.remember(dest)
 
     def checkout(self, key: str, commit: str) -> None:
         """Detach HEAD at `commit` and make the index and working tree match it."""
@@ -533,6 +537,7 @@ class GitStore:
                 config.set((b"remote", b"origin"), b"fetch", b"+refs/heads/*:refs/remotes/origin/*")
                 config.write_to_path()
                 self._transport.fetch_into(repo, url, skip=skip)
+            integrity.remember(fresh)
         except BaseException:
             shutil.rmtree(fresh, ignore_errors=True)
             raise

@@ -23,13 +23,18 @@ every object; a pack whose checksum holds is whole).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import json
 import os
 import struct
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 from dulwich.repo import Repo
+
+from reconciler.atomic import write_atomic
 
 _CHUNK = 1024 * 1024
 _IDX_MAGIC = b"\377tOc"
@@ -40,11 +45,14 @@ def damage(checkout: Path) -> str | None:
     """What is wrong with the git checkout `checkout` in one short phrase (paths relative
     to its `.git`), or None when it is sound. Never raises for what it reads."""
     git = checkout / ".git"
-    for check in (_config, _packs, _loose, _refs, _index):
+    checks: tuple[tuple[str, Callable[[Path], str | None]], ...] = (
+        ("config", _config), ("packs", _packs), ("loose", _loose), ("refs", _refs),
+        ("index", _index))
+    for name, check in checks:
         try:
             found = check(git)
         except Exception as exc:  # any failure to read is damage here
-            found = f"{check.__name__.strip('_')} unreadable: {_reason(exc)}"
+            found = f"{name} unreadable: {_reason(exc)}"
         if found is not None:
             return found
     return None
@@ -64,23 +72,72 @@ def _config(git: Path) -> str | None:
     return None
 
 
-def _packs(git: Path) -> str | None:
+VERIFIED = "lpam-verified.json"  # in .git: the packs lpam wrote, by size and time
+
+
+def remember(checkout: Path) -> None:
+    """Note the packs now in `checkout` as sound, by size and time: called right after
+    lpam wrote them (a fetch, whose packs dulwich checked against their checksums as it
+    stored them). While unchanged they are not read whole again: a plan of a repository
+    with large packs (a ROS repository with bag files) must not read them all each time."""
+    git = checkout / ".git"
     pack_dir = git / "objects" / "pack"
     names = set(os.listdir(pack_dir)) if pack_dir.is_dir() else set()
+    stamps = {name: _stamp(pack_dir / name, pack_dir / (name[:-5] + ".idx"))
+              for name in sorted(names)
+              if name.endswith(".pack") and name[:-5] + ".idx" in names}
+    with contextlib.suppress(OSError):
+        write_atomic(git / VERIFIED, json.dumps(stamps, sort_keys=True) + "\n")
+
+
+def _packs(git: Path) -> str | None:
+    """Each pack against its checksum and its index; one lpam wrote (`remember`) is read
+    whole only once its size or time (or its index's) changed — a pack cut short, or
+    rewritten, changes them; what changes neither (a bit flipped in place) is found when a
+    read of it fails."""
+    pack_dir = git / "objects" / "pack"
+    names = set(os.listdir(pack_dir)) if pack_dir.is_dir() else set()
+    known = _verified(git)
     for name in sorted(names):
         if not name.endswith(".pack") or name[:-5] + ".idx" not in names:
             continue  # a pack still being written has no index yet; dulwich ignores it
         where = f"objects/pack/{name}"
-        pack = _pack_trailer(pack_dir / name)
-        if isinstance(pack, str):
-            return f"{where} {pack}"
+        stamp = _stamp(pack_dir / name, pack_dir / (name[:-5] + ".idx"))
         index = _index_trailer(pack_dir / (name[:-5] + ".idx"))
         if isinstance(index, str):
             return f"objects/pack/{name[:-5]}.idx {index}"
+        pack = _pack_end(pack_dir / name) if known.get(name) == stamp else \
+            _pack_trailer(pack_dir / name)
+        if isinstance(pack, str):
+            return f"{where} {pack}"
         if index != pack:
             return f"{where} is not the pack its index describes (another pack's index, " \
                 "or the pack was replaced)"
     return None
+
+
+def _stamp(pack: Path, index: Path) -> list[int]:
+    a, b = pack.stat(), index.stat()
+    return [a.st_size, a.st_mtime_ns, b.st_size, b.st_mtime_ns]
+
+
+def _verified(git: Path) -> dict[str, list[int]]:
+    try:
+        data = json.loads((git / VERIFIED).read_text())
+    except (OSError, ValueError):
+        return {}
+    return {str(k): list(v) for k, v in data.items()} if isinstance(data, dict) else {}
+
+
+def _pack_end(path: Path) -> tuple[int, bytes] | str:
+    """(objects, checksum) from the header and trailer of a pack read whole before."""
+    with path.open("rb") as file:
+        header = file.read(12)
+        file.seek(-_SHA, os.SEEK_END)
+        stored = file.read(_SHA)
+    if header[:4] != b"PACK" or len(stored) != _SHA:
+        return "does not start like a git pack"
+    return struct.unpack(">L", header[8:12])[0], stored
 
 
 def _pack_trailer(path: Path) -> tuple[int, bytes] | str:

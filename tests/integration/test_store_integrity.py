@@ -154,3 +154,25 @@ def test_a_fetch_makes_its_pack_durable_before_refs_name_it(
     pack = next(i for i, p in enumerate(synced) if p.startswith(packs) and p.endswith(".pack"))
     index = next(i for i, p in enumerate(synced) if p.startswith(packs) and ".idx" in p)
     assert synced[-1] == packs and pack < index < len(synced) - 1, synced
+
+
+def test_a_pack_lpam_wrote_is_read_whole_only_once_it_changed(
+    store: tuple[GitStore, str], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A plan checks every repository before it reads one: the packs lpam fetched itself
+    (checked as they were stored) are not read whole again while unchanged, so a plan of
+    a repository with large packs does not read them all each time; a pack cut short is
+    still found at once."""
+    from reconciler.adapters import integrity
+
+    git_store, _ = store
+    git = git_store.location(KEY) / ".git"
+    whole: list[Path] = []
+    read = integrity._pack_trailer
+    monkeypatch.setattr(integrity, "_pack_trailer", lambda p: (whole.append(p), read(p))[1])
+    assert git_store.damage(KEY) is None and whole == []  # fetched by lpam: not read whole
+    (git / integrity.VERIFIED).unlink()  # as an older lpam left it
+    assert git_store.damage(KEY) is None and len(whole) == 1
+    pack = _pack(git)
+    pack.write_bytes(pack.read_bytes()[:-300])
+    assert git_store.damage(KEY) is not None
