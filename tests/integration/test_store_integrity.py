@@ -169,7 +169,12 @@ def test_a_pack_lpam_wrote_is_read_whole_only_once_it_changed(
     git = git_store.location(KEY) / ".git"
     whole: list[Path] = []
     read = integrity._pack_trailer
-    monkeypatch.setattr(integrity, "_pack_trailer", lambda p: (whole.append(p), read(p))[1])
+
+    def counted(path: Path) -> tuple[int, bytes] | str:
+        whole.append(path)
+        return read(path)
+
+    monkeypatch.setattr(integrity, "_pack_trailer", counted)
     assert git_store.damage(KEY) is None and whole == []  # fetched by lpam: not read whole
     (git / integrity.VERIFIED).unlink()  # as an older lpam left it
     assert git_store.damage(KEY) is None and len(whole) == 1
