@@ -1,9 +1,10 @@
-"""Update gates on the real RAV4 drive: how fast frames are read and the speed decoded, and
-what the gate costs while it waits beside the experiment.
+"""Update gates on the generated RAV4 drive (tests/drive.py, shaped like a real one): how
+fast frames are read and the speed decoded, and what the gate costs while it waits beside
+the experiment.
 
     .venv/bin/python -m bench.gates [--reps 3] [--wait 20]
 
-1. Decoding throughput: every frame of the drive (56,323 frames, 13 minutes) read through
+1. Decoding throughput: every frame of the drive (62,400 frames, 13 minutes) read through
    each source lpam has — the libpanda CSV followed as it grows, the candump log, a
    socketcand server on 127.0.0.1 replaying as fast as it can — and the SPEED frames
    decoded. Reported in frames per second and as a multiple of the drive's own frame rate.
@@ -32,7 +33,7 @@ from pathlib import Path
 
 from reconciler.adapters.can.sources import FrameSource, open_source
 from reconciler.vehicle.signal import RAV4_SPEED, decode
-from tests.canlog import CsvWriter, between, recording, write_candump, write_csv
+from tests.canlog import CsvWriter, between, drive, write_candump, write_csv
 from tests.gitserver import GitDaemon, RepoBuilder, git_env
 from tests.integration.apps import apps_repo, desired
 from tests.socketcand import SocketcandServer
@@ -56,7 +57,7 @@ def read_all(open_it: Callable[[], FrameSource], total: int) -> tuple[float, int
 
 
 def throughput(tmp: Path, reps: int) -> list[tuple[str, float, int]]:
-    frames = recording()
+    frames = drive()
     total = len(frames)
     csv, log = tmp / "drive.csv", tmp / "drive.log"
     write_csv(csv, frames)
@@ -96,7 +97,7 @@ def lpam(root: Path, *args: str) -> tuple[float, float, int]:
 def waiting(tmp: Path, wait: float) -> list[tuple[str, float, float, float]]:
     """(source, extra wall s, extra CPU s, share of a core) of `apply --wait` over
     `--wait 0`, while the car drives (the gate stays closed)."""
-    frames = recording()
+    frames = drive()
     home = tmp / "home"
     home.mkdir()
     os.environ.update(git_env(home))
@@ -148,10 +149,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 1 <= args.reps <= 20 or not 5 <= args.wait <= 300:
         parser.error("keep 1 <= --reps <= 20 and 5 <= --wait <= 300")
-    frames = recording()
-    rate = len(frames) / (frames[-1].timestamp - frames[0].timestamp)
-    print(f"The drive: {len(frames)} frames in {frames[-1].timestamp - frames[0].timestamp:.0f}"
-          f" s, {rate:.1f} frames/s.\n")
+    frames = drive()
+    span = frames[-1].timestamp - frames[0].timestamp
+    rate = len(frames) / span
+    print(f"The generated drive (tests/drive.py): {len(frames)} frames in {span:.0f} s, "
+          f"{rate:.1f} frames/s.\n")
     with tempfile.TemporaryDirectory(prefix="lpam-bench-gates-") as name:
         tmp = Path(name)
         print("| source | median s for the drive | frames/s | x the drive's rate | "

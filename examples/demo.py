@@ -187,8 +187,9 @@ def main() -> int:
     commit_to_fleet("version: 1\napp: {name: speed-monitor, parmas: {}}\n", "typo")
     lpam("sync", check=False)
     lpam("sync")
-    print("\n== 10. Update gates: the switch waits until the car is parked. The real RAV4")
-    print("   drive (tests/fixtures) is replayed as the CSV the recording app writes")
+    print("\n== 10. Update gates: the switch waits until the car is parked. A RAV4 drive")
+    print("   generated from a speed profile (tests/drive.py) is replayed as the CSV the")
+    print("   recording app writes")
     gates_on_the_drive()
     print("\n== 11. Stop supervisord (and the app it runs)")
     lpam("services", "shutdown")
@@ -196,14 +197,12 @@ def main() -> int:
     return 0
 
 
-def drive_at(instant: float) -> bool:
-    """The recording app's CSV as it stands `instant` seconds into the drive, this instant
-    being now, behind /etc/libpanda.d/currentCan.csv; False without the recording."""
-    from tests.canlog import between, recording, recording_path, write_csv
+def drive_at(instant: float) -> None:
+    """The recording app's CSV as it stands `instant` seconds into the generated drive, this
+    instant being now, behind /etc/libpanda.d/currentCan.csv."""
+    from tests.canlog import between, drive, write_csv
 
-    if recording_path() is None:
-        return False
-    frames = recording()
+    frames = drive()
     data = ROOT / "var" / "log" / "demo-drive" / f"at-{instant:g}.csv"
     data.parent.mkdir(parents=True, exist_ok=True)
     write_csv(data, between(frames, max(0.0, instant - 120), instant),
@@ -212,13 +211,10 @@ def drive_at(instant: float) -> bool:
     link.parent.mkdir(parents=True, exist_ok=True)
     link.unlink(missing_ok=True)
     link.symlink_to(data)
-    return True
 
 
 def gates_on_the_drive() -> None:
-    if not drive_at(200.0):
-        print("   skipped: the recorded drive is not in tests/fixtures")
-        return
+    drive_at(200.0)
     gated = switched_desired_state("can-logger", {"LOG_RATE_HZ": "10"}, "gated",
                                    gates={"stationary_seconds": 60})
     print("   200 s into the drive the car is moving: the switch is prepared, then deferred")
@@ -226,7 +222,7 @@ def gates_on_the_drive() -> None:
     if code != 75:
         raise SystemExit(f"demo failed: a moving car should defer the switch (75), not {code}")
     lpam("status")
-    print("\n   740 s into the drive it has stood since 669 s: parked, the switch goes through")
+    print("\n   740 s into the drive it has stood since 668.75 s: parked, the switch goes through")
     drive_at(740.0)
     lpam("gates", "-f", str(gated))
     lpam("apply", "-f", str(gated), "--yes")

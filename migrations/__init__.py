@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from migrations import (
+    agent_status_v1_to_v2,
     desired_state_v0_to_v1,
     state_record_v1_to_v2,
     state_record_v2_to_v3,
@@ -29,7 +30,7 @@ from migrations.step import MigrationError, Step
 from reconciler.errors import ConfigError, VersionError
 
 CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 4, "plan": 1,
-                           "agent-config": 1, "agent-status": 1}
+                           "agent-config": 1, "agent-status": 2}
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
 STEPS: dict[str, dict[str, tuple[str, Step]]] = {
@@ -39,7 +40,7 @@ STEPS: dict[str, dict[str, tuple[str, Step]]] = {
                      "3": ("4", state_record_v3_to_v4.upgrade)},
     "plan": {},
     "agent-config": {},
-    "agent-status": {},
+    "agent-status": {"1": ("2", agent_status_v1_to_v2.upgrade)},
 }
 
 _MISSING_HINTS = {
@@ -56,7 +57,7 @@ _NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
 _LABELS = {"desired-state": "desired state", "state-record": "state record", "plan": "plan",
            "agent-config": "agent configuration", "agent-status": "agent status"}
 
-Position = Callable[[Sequence[str | int]], tuple[int, int]]
+Position = Callable[[Sequence[str | int]], tuple[int, int] | tuple[None, None]]
 
 
 def upgrade(

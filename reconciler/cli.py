@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from reconciler import __version__
-from reconciler.errors import ConfigError, LpamError
+from reconciler.errors import ConfigError, LpamError, Terminated
 from reconciler.layout import Layout
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
@@ -66,6 +66,9 @@ WAIT_OPTIONS: dict[str, Any] = {
     "type": float, "default": 0.0, "metavar": "SECONDS",
     "help": "wait up to SECONDS for closed update gates to open before the cutover; still "
             "closed: exit 75, deferred (default 0)"}
+VALIDATE_KINDS = ("desired-state", "catalog", "repository", "agent", "plan")
+"""The values of reconciler.validation.Kind, spelled out: the parser is built before any
+command runs, and `lpam --version` must not import the schemas."""
 FORCE = ("--force",)
 FORCE_OPTIONS: dict[str, Any] = {
     "action": "store_true", "help": "ignore the update gates (the vehicle may be moving)"}
@@ -218,8 +221,10 @@ def _parser() -> argparse.ArgumentParser:
                           help="shutdown: stop the supervisord lpam started for this root")
 
     validate = sub.add_parser("validate", parents=[common],
-                              help="check a desired state, a catalog or an app repository")
+                              help="check any document lpam reads, by the kind its keys show")
     validate.add_argument("path", type=Path)
+    validate.add_argument("--kind", choices=VALIDATE_KINDS,
+                          help="read PATH as this kind instead of deciding from its keys")
 
     imp = sub.add_parser("import-lpam", parents=[common],
                          help="write a desired state equivalent to an LPAM installation")
@@ -255,10 +260,6 @@ def entry() -> int:
         gc.freeze()
 
 
-class Terminated(BaseException):
-    """SIGTERM, raised where lpam stands so that the running script is stopped first."""
-
-
 def _terminate(signum: int, frame: object) -> None:
     raise Terminated
 
@@ -277,13 +278,37 @@ def main(argv: Sequence[str] | None = None) -> int:
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
     except (KeyboardInterrupt, Terminated) as exc:
-        print("interrupted: lpam stopped the script it was running and recorded where it "
-              "stood; run `lpam apply` again to resume", file=sys.stderr)
+        if args.command in CHANGES_THE_CAR:
+            print("interrupted: lpam recorded where it stood (a script under way is stopped "
+                  f"with its whole process group); run `{again(args)}` to resume",
+                  file=sys.stderr)
+        else:
+            print("interrupted: nothing was changed", file=sys.stderr)
         return 143 if isinstance(exc, Terminated) else 130
     except Exception:  # a bug: keep the traceback away from the user, but keep it
         log = _debug_log(layout)
         print(f"error: internal error in lpam {__version__}; details in {log}", file=sys.stderr)
         return EXIT_ERROR
+
+
+CHANGES_THE_CAR = ("apply", "sync", "agent", "start", "stop", "restart", "rollback")
+
+
+def again(args: argparse.Namespace) -> str:
+    """The command that goes on from where this one stopped, as the user would type it:
+    the same root and desired-state file (a saved plan is stale once part of it ran)."""
+    import shlex
+
+    parts = ["lpam"]
+    root = getattr(args, "root", None)
+    if root:
+        parts += ["--root", str(root)]
+    parts.append(args.command if args.command != "agent" else "sync")
+    if getattr(args, "file", None) is not None:
+        parts += ["-f", str(args.file)]
+    if getattr(args, "config", None) is not None:
+        parts += ["--config", str(args.config)]
+    return shlex.join(parts)
 
 
 def _debug_log(layout: Layout) -> str:
@@ -345,11 +370,20 @@ class Terminal:
         now_ = self._clock()
         if line.startswith("$ "):  # a new command: its clock starts
             self._started = self._shown = now_
-            print(f"      {line[:100]}", flush=True)
+            print(f"      {_fit(line, 100)}", flush=True)
         elif now_ - self._shown >= self.EVERY:
             self._shown = now_
-            shown = "".join(c if c.isprintable() else "?" for c in line)[:80]
-            print(f"      … {now_ - self._started:.0f} s: {shown}", flush=True)
+            print(f"      … {now_ - self._started:.0f} s: {_fit(line, 80)}", flush=True)
+
+
+def _fit(line: str, width: int) -> str:
+    """`line` in at most `width` printable characters, cut in the middle: the end of a
+    command line (the path, the package) is the part that says most."""
+    text = "".join(c if c.isprintable() else "?" for c in line)
+    if len(text) <= width:
+        return text
+    head = width * 2 // 5
+    return f"{text[:head]} … {text[len(text) - (width - head - 3):]}"
 
 
 def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
@@ -385,13 +419,13 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
         raise LpamError("give either a plan file or -f FILE, not both")
     options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
                            keep_generations=args.keep_generations, release=args.release,
-                           wait=args.wait)
+                           wait=args.wait, resume=again(args))
     # Bad input is rejected before the lock is taken, so it never waits on another apply.
     if args.planfile is not None:
         saved = load_plan(args.planfile)
         machine = _machine(args, layout)
         found = _desired_if_any(args, layout, machine)
-        base = found[0].resolve().parent if found else layout.root
+        base = found[2] if found else layout.root
         print()
         done = apply_saved(machine, saved, str(args.planfile), options=options,
                            report=Terminal(),
@@ -443,11 +477,11 @@ def _gate(args: argparse.Namespace, layout: Layout, machine: Machine) -> Gate | 
     if getattr(args, "force", False):
         return None
     found = _desired_if_any(args, layout, machine)
-    return machine.gate_for(found[1], found[0].resolve().parent) if found else None
+    return machine.gate_for(found[1], found[2]) if found else None
 
 
 def _desired_if_any(args: argparse.Namespace, layout: Layout,
-                    machine: Machine) -> tuple[Path, DesiredState] | None:
+                    machine: Machine) -> tuple[Path, DesiredState, Path] | None:
     """The desired state in force (see `_gate`), for its gates and vehicle source; one that
     cannot be read leaves the gates unknown, which is refused rather than guessed."""
     from reconciler.documents import load_desired
@@ -456,8 +490,10 @@ def _desired_if_any(args: argparse.Namespace, layout: Layout,
     path = _desired_path(args, layout)
     try:
         if path.exists():
-            return path, load_desired(path)
-        return None if args.file else applied_desired(machine)
+            return path, load_desired(path), path.resolve().parent
+        followed = None if args.file else applied_desired(machine)
+        return None if followed is None else \
+            (followed.label, followed.desired, followed.base_dir)
     except LpamError as exc:  # raised as it is, so a document's file:line:col stays
         exc.hint = ((exc.hint + "; ") if exc.hint else "") + (
             "the update gates cannot be known: fix it, or pass --force to ignore them "
@@ -492,26 +528,27 @@ def cmd_gates(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
+    """The installed app's output (reconciler/workflow/logs.py says from where)."""
     import time
 
-    from reconciler.state import read_record
+    from reconciler.workflow.logs import app_logs
 
-    app = read_record(layout).app
-    if app is None or app.service is None:
-        raise LpamError("no installed app with a unit to show the output of" if app is None
-                        else f"{app.name} names no unit (no `service` file)",
-                        hint="its scripts' output is in <root>/var/log/lpam/apply-*.log")
-    services = services_for(layout, args.services)
-    shown = services.logs(app.service, max(args.lines, 1))
-    for line in shown:
+    machine = _machine(args, layout)
+    shown = app_logs(machine, max(args.lines, 1))
+    for note in shown.notes:
+        print(f"note: {note}", file=sys.stderr)
+    for line in shown.lines:
         print(line)
-    while args.follow:
+    if args.follow and shown.unit is None:
+        raise LpamError("cannot follow: the service manager does not have this app's output",
+                        hint="the note above says where it is")
+    previous = shown.lines
+    while args.follow and shown.unit is not None:
         time.sleep(1.0)
-        lines = services.logs(app.service, 200)
-        overlap = _overlap(shown, lines)
-        for line in lines[overlap:]:
+        lines = machine.services.logs(shown.unit, 200)
+        for line in lines[_overlap(previous, lines):]:
             print(line, flush=True)
-        shown = lines
+        previous = lines
     return EXIT_OK
 
 
@@ -580,7 +617,8 @@ def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
     config = load_agent(args.config if args.config is not None else layout.agent_config)
     wait = config.gate_wait_seconds if args.wait is None else args.wait
     options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
-                           keep_generations=args.keep_generations, wait=wait)
+                           keep_generations=args.keep_generations, wait=wait,
+                           resume=again(args))
     done = sync(_machine(args, layout), config, report=Terminal(), options=options,
                 fetch_only=args.fetch_only, bundle=args.bundle)
     revision = done.revision[:12] if done.revision else "none"
@@ -601,7 +639,7 @@ def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
 
     config = load_agent(args.config if args.config is not None else layout.agent_config)
     options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
-                           wait=config.gate_wait_seconds)
+                           wait=config.gate_wait_seconds, resume=again(args))
     agent = Agent(_machine(args, layout), config, report=_agent_report, options=options)
     signal.signal(signal.SIGTERM, lambda signum, frame: agent.stop.set())
     return agent.run(once=args.once)
@@ -656,8 +694,9 @@ def cmd_fleet(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow import fleet
 
     tip, rows = fleet.read(args.repo, args.branch)
-    print(json.dumps(fleet.as_json(tip, rows), indent=2) if args.json
-          else fleet.as_table(tip, rows))
+    at = now()  # the ages of the reports are measured against this machine's clock
+    print(json.dumps(fleet.as_json(tip, rows, now=at), indent=2) if args.json
+          else fleet.as_table(tip, rows, now=at))
     return EXIT_OK
 
 
@@ -711,9 +750,9 @@ def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_validate(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.validation import validate
+    from reconciler.validation import Kind, validate
 
-    print(validate(Path(args.path)))
+    print(validate(Path(args.path), None if args.kind is None else Kind(args.kind)))
     return EXIT_OK
 
 

@@ -7,6 +7,7 @@ Pydantic's error locations are mapped back onto the YAML tree kept by loading.py
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -28,6 +29,10 @@ _HINTS = {
     "literal_error": "use one of the values shown",
 }
 
+_EXAMPLES = {"agent configuration": "the README's agent.yaml (A fleet that follows git)",
+             "catalog": "the README's libpanda-apps.yaml (Apps are services)"}
+"""Where a misspelt key's right spelling is shown, for documents other than a desired state."""
+
 
 def validation_error(doc: Document, exc: ValidationError, what: str) -> ConfigError:
     """The first pydantic complaint as a ConfigError at the offending node."""
@@ -43,7 +48,10 @@ def validation_error(doc: Document, exc: ValidationError, what: str) -> ConfigEr
         message = f"{field} is required"
     else:
         message = f"{field}: {message}"
-    return doc.error(message, loc, _HINTS.get(error["type"]))
+    hint = _HINTS.get(error["type"])
+    if error["type"] == "extra_forbidden" and what in _EXAMPLES:
+        hint = f"remove it, or check its spelling against {_EXAMPLES[what]}"
+    return doc.error(message, loc, hint)
 
 
 def _validate(doc: Document, data: Any, model: type[BaseModel], what: str) -> Any:
@@ -92,13 +100,17 @@ def _check_duplicate_repositories(doc: Document, data: dict[str, Any]) -> None:
 
 def load_agent(path: Path) -> AgentConfig:
     """The agent's configuration (`etc/lpam/agent.yaml`), version-checked and validated."""
-    from migrations import upgrade
-
     if not path.exists():
         raise ConfigError("file not found", path=path,
                           hint="write it (README: A fleet that follows git), or pass "
                           "--config FILE")
-    doc = load(path)
+    return agent_from(load(path))
+
+
+def agent_from(doc: Document) -> AgentConfig:
+    """The agent's configuration in a document already parsed."""
+    from migrations import upgrade
+
     data = upgrade("agent-config", doc.data, path=doc.path, position=doc.position)
     config: AgentConfig = _validate(doc, data, AgentConfig, "agent configuration")
     return config
@@ -126,7 +138,9 @@ def parse_json(
 ) -> M:
     """A JSON document lpam wrote itself (plan, state record): parse, migrate, validate.
 
-    JSON has no positions worth a user's time, so faults name the field path instead.
+    A fault names its line and column like a YAML document's: JSON is YAML, so the text is
+    parsed again for positions, but only once a fault needs them (a large plan is parsed
+    once, by `json`, when it is sound).
     """
     from migrations import upgrade
 
@@ -138,18 +152,43 @@ def parse_json(
     except RecursionError:
         raise ConfigError(f"not a valid {kind}: nested too deeply", path=path, line=1,
                           column=1, hint=hint) from None
+    where = _JsonPositions(path, text, version_key)
     if isinstance(data, dict) and version_key != "version" and version_key in data:
         data["version"] = data.pop(version_key)
-    data = upgrade(kind, data, path=path)
+    data = upgrade(kind, data, path=path, position=where)
     if version_key != "version":
         data[version_key] = data.pop("version")
     try:
         return model.model_validate(data)
     except ValidationError as exc:
         error = exc.errors()[0]
-        where = ".".join(str(p) for p in error["loc"])
-        raise ConfigError(f"invalid {kind} at {where}: {error['msg']}", path=path,
-                          hint=hint) from None
+        field = ".".join(str(p) for p in error["loc"])
+        line, column = where(list(error["loc"]))
+        raise ConfigError(f"invalid {kind} at {field}: {error['msg']}", path=path,
+                          line=line, column=column, hint=hint) from None
+
+
+class _JsonPositions:
+    """1-based (line, column) of a location in a JSON text, parsed as YAML on first use.
+    A text the YAML reader refuses (a plan of more values than a YAML document may hold)
+    has no positions: its faults name the field only."""
+
+    def __init__(self, path: Path, text: str, version_key: str) -> None:
+        self._path, self._text, self._version_key = path, text, version_key
+        self._doc: Document | None = None
+        self._failed = False
+
+    def __call__(self, loc: Sequence[str | int]) -> tuple[int, int] | tuple[None, None]:
+        if self._doc is None and not self._failed:
+            try:
+                self._doc = load(self._path, self._text)
+            except ConfigError:
+                self._failed = True
+        if self._doc is None:
+            return None, None
+        # `version` is the migrations' name of the plan's `format_version`
+        loc = [self._version_key if part == "version" else part for part in loc]
+        return self._doc.position([p for p in loc if isinstance(p, str | int)])
 
 
 def load_plan(path: Path) -> Plan:

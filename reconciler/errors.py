@@ -23,6 +23,11 @@ def shorten(text: str, limit: int = MESSAGE_LIMIT) -> str:
         f"{text[len(text) - keep // 4:]}"
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised where lpam stands (like KeyboardInterrupt for Ctrl-C), so that the
+    running script is stopped first and the apply records that it was interrupted."""
+
+
 class LpamError(Exception):
     """Base of every error lpam reports to a user. Its message is one line of bounded
     length, whatever value it echoes."""
@@ -31,7 +36,9 @@ class LpamError(Exception):
 
     def __init__(self, message: str, *, hint: str | None = None,
                  details: list[str] | None = None) -> None:
-        message = shorten(message)
+        # one line: a server's or a library's text may end in a line break, which a
+        # terminal-safe rendering would show as a stray "?" ("remote side.?")
+        message = shorten(" ".join(message.strip().splitlines()))
         super().__init__(message)
         self.message = message
         self.hint = hint
@@ -92,6 +99,30 @@ class VersionError(ConfigError):
 
 class GitError(LpamError):
     """Talking to a git repository failed: unreachable server, bad URL, corrupt store."""
+
+
+class StoreDamagedError(GitError):
+    """A repository's copy in the store is damaged: a truncated or overwritten pack, a lost
+    pack index, refs naming objects that are gone (what a power cut or a failing SD card
+    leaves). The store is a cache of the remotes, so nothing reads a damaged copy: status
+    notes it, plan refuses it, and apply fetches the repository anew, keeping the damaged
+    copy aside."""
+
+    def __init__(self, key: str, damage: str, *, path: Path | None = None,
+                 hint: str | None = None, after: str = "") -> None:
+        where = f" ({path})" if path is not None else ""
+        super().__init__(
+            f"repository {key}: its copy in the store is damaged: {damage}{where}{after}",
+            hint=hint or "the store is a cache: the next `lpam apply` moves the damaged copy "
+            "aside and fetches the repository anew; nothing was changed")
+        self.key = key
+        self.damage = damage
+
+
+class PushRefusedError(GitError):
+    """The repository does not accept a push from this machine: read-only (a mirror, git
+    daemon without receive-pack), no write access (a read-only token or deploy key), or a
+    protected branch. Unlike a network failure, asking again soon cannot help."""
 
 
 class RefNotFoundError(GitError):

@@ -161,6 +161,12 @@ class Layout:
         """What the agent's passes found and did (schemas/agent.py `AgentStatus`)."""
         return self.var / "status.json"
 
+    @property
+    def agent_files(self) -> Path:
+        """Files a followed desired state names relative to itself (a DBC, a CAN log),
+        copied out of the source: `<revision>/<path in the source>`."""
+        return self.var / "agent-files"
+
     def under(self, path: str) -> Path:
         """A machine path as documents write it (`/run/lpam/locks/x.lock`), under --root."""
         return self.root / path.lstrip("/")

@@ -12,7 +12,9 @@ cannot know the app's unit, the record's word is shown, marked unverified.
 
 What a repository holds is shown, so it is not trusted: a file too large is left out
 rather than failing the whole answer, and the table replaces control characters (a
-description could otherwise send escape sequences to the operator's terminal).
+description could otherwise send escape sequences to the operator's terminal). A
+repository whose copy in the store is damaged keeps its row, saying so, and the others
+are shown as ever: status must answer most when something is wrong.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from reconciler.documents import parse_catalog
-from reconciler.errors import ConfigError, GitError
+from reconciler.errors import ConfigError, GitError, StoreDamagedError
 from reconciler.layout import Layout
 from reconciler.state import read_agent_status, read_record
 from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
@@ -45,6 +47,8 @@ class Objects(Protocol):
 
     def read_file(self, key: str, commit: str, path: str) -> bytes | None: ...
 
+    def damage(self, key: str) -> str | None: ...
+
 
 @dataclass(frozen=True)
 class Row:
@@ -58,6 +62,7 @@ class Row:
     status: str | None  # the installed app's lifecycle (schemas.record.AppStatus), else None
     description: str
     verified: bool | None = None  # running asked of the service manager (None: not installed)
+    damage: str | None = None  # what is wrong with the repository's copy in the store
 
 
 def _folder_files(store: Objects, key: str, commit: str, folder: str) -> dict[str, bytes]:
@@ -95,7 +100,8 @@ def _app_row(
     status = None if installed is None else _status(installed, runs)
     service = installed.service if installed is not None and installed.service else None
     return Row(
-        repository=common["repository"], ref=common["ref"], commit=common["commit"],
+        repository=common["repository"], ref=common["ref"],
+        commit=installed.commit[:12] if installed is not None else common["commit"],
         app=app.name, service=service or app.service or "-",
         installed=installed is not None, running=runs, status=status,
         description=app.description, verified=verified,
@@ -114,10 +120,17 @@ def _status(installed: AppRecord, runs: bool) -> str:
     return status
 
 
-def _note(common: dict[str, str], description: str) -> Row:
+def _note(common: dict[str, str], description: str, damage: str | None = None) -> Row:
     return Row(repository=common["repository"], ref=common["ref"], commit=common["commit"],
                app="-", service="-", installed=False, running=False, status=None,
-               description=description)
+               description=description, damage=damage)
+
+
+def _damaged(common: dict[str, str], damage: str) -> Row:
+    """The row of a repository whose copy in the store is damaged; the damage itself is
+    said in full under the table (a cell holds 80 characters)."""
+    return _note(common, "(damaged in the store: the next `lpam apply` fetches it anew)",
+                 damage)
 
 
 def rows(
@@ -137,8 +150,15 @@ def rows(
     for repo in record.repositories:
         common = {"repository": repo.key, "ref": repo.ref or "(default)",
                   "commit": repo.commit[:12]}
-        if not store.has_commit(repo.key, repo.commit):
-            table.append(_note(common, "(commit missing from the repository store)"))
+        try:
+            present = store.has_commit(repo.key, repo.commit)
+        except StoreDamagedError as exc:
+            table.append(_damaged(common, exc.damage))
+            continue
+        if not present:  # a lost pack or index hides commits without any read failing
+            damage = store.damage(repo.key)
+            table.append(_note(common, "(commit missing from the repository store)")
+                         if damage is None else _damaged(common, damage))
             continue
         try:
             data = store.read_file(repo.key, repo.commit, CATALOG_FILE)
@@ -206,11 +226,17 @@ def as_json(layout: Layout, *, store: Objects | None = None,
             "command": app.command, "launch": app.launch, "user": app.user,
         },
         "service_manager": manager,
-        "last_apply": None if last is None else last.model_dump(mode="json"),
+        "last_apply": None if last is None else {**last.model_dump(mode="json"),
+                                                 "shown": _last_apply(layout, record)},
         "repositories": [
             {"key": r.key, "url": r.url, "ref": r.ref, "commit": r.commit}
             for r in record.repositories
         ],
+        "checkouts_not_running": [  # moved by an apply that did not succeed
+            {"key": r.key, "commit": r.commit, "applied_commit": r.applied}
+            for r in record.repositories if r.applied != r.commit
+        ],
+        "holds": holds(record),
         "apps": [asdict(r) for r in rows(layout, record=record, store=store, live=live)],
         "strays": [
             {"name": s.name, "generation": s.generation, "stopped": s.stopped,
@@ -264,7 +290,10 @@ def as_table(layout: Layout, *, store: Objects | None = None,
     strays = [f"Installed without a record: {_cell(s.name)} (generation "
               f"{_cell(s.generation)}); `lpam apply` stops and uninstalls it before "
               "installing any app." for s in record.strays]
-    strays += _footer(record, live, manager) + _agent_footer(layout)
+    strays += [f"Repository {_cell(r.repository)}: its copy in the store is damaged: "
+               f"{_printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
+               "anew." for r in table if r.damage is not None]
+    strays += _footer(layout, record, live, manager) + _agent_footer(layout)
     deferred = _deferred(layout)
     if deferred is not None:
         strays.append(f"Cutover deferred at {deferred['time']} (the update gates): "
@@ -281,18 +310,89 @@ def as_table(layout: Layout, *, store: Objects | None = None,
     return "\n".join([*lines, *strays])
 
 
-def _footer(record: StateRecord, live: UnitState | None, manager: str | None) -> list[str]:
-    """The lines under the table: the app's unit as its manager sees it, the last apply."""
+def _footer(layout: Layout, record: StateRecord, live: UnitState | None,
+            manager: str | None) -> list[str]:
+    """The lines under the table: the app's unit as its manager sees it, checkouts that
+    are not what runs, the holds and how each ends, the last apply."""
     lines = []
     if live is not None:
         how = live.describe() if live.known else \
             f"{live.describe()}: running is what the app's scripts reported (unverified)"
         lines.append(f"Service manager: {manager or '?'}; {_printable(how)}")
-    last = record.last_apply
-    if last is not None:
-        why = f": {last.reason}" if last.reason else ""
-        lines.append(f"Last apply: {last.result} at {last.time}{_printable(why)}")
+    lines += [_printable(line) for line in _checkouts(record)]
+    lines += [_printable(f"Held: {h['what']}; it ends {h['ends']}.") for h in holds(record)]
+    shown = _last_apply(layout, record)
+    if shown is not None:
+        lines.append(_printable(f"Last apply: {shown}"))
     return lines + _cutover_footer(record)
+
+
+def _checkouts(record: StateRecord) -> list[str]:
+    """A checkout only an apply that did not succeed moved is not what runs: said so."""
+    lines = []
+    for repo in record.repositories:
+        if repo.applied == repo.commit:
+            continue
+        if repo.applied is None:
+            lines.append(f"Repository {repo.key}: checked out at {repo.commit[:12]} by an "
+                         "apply that did not succeed; nothing that runs comes from it yet.")
+        else:
+            lines.append(f"Repository {repo.key}: checked out at {repo.commit[:12]} by an "
+                         f"apply that did not succeed; what runs came from "
+                         f"{repo.applied[:12]}.")
+    return lines
+
+
+def holds(record: StateRecord) -> list[dict[str, str]]:
+    """Every hold on this car, what it holds against and how it ends."""
+    against = record.desired.source if record.desired is not None else "the desired state"
+    found = []
+    if record.hold is not None:
+        found.append({
+            "kind": "rollback", "what": f"`lpam rollback` returned to generation "
+            f"{record.hold.generation}, and plans propose nothing else",
+            "against": against,
+            "ends": f"when the desired state last applied ({against}) changes, or with "
+            "`lpam apply --release`"})
+    app = record.app
+    if app is not None and app.held:
+        found.append({
+            "kind": "operator stop", "what": f"{app.name} was stopped by `lpam stop` and "
+            "stays stopped", "against": against,
+            "ends": f"with `lpam start`, when the desired state last applied ({against}) "
+            "changes, or with `lpam apply --release`"})
+    return found
+
+
+def _last_apply(layout: Layout, record: StateRecord) -> str | None:
+    """The last apply as it stands: one `in progress` whose process is gone was cut off
+    (a kill, a power cut), and says how to go on."""
+    last = record.last_apply
+    if last is None:
+        return None
+    why = f": {last.reason}" if last.reason else ""
+    if last.result == "in progress":
+        from reconciler.execution.lock import holder
+
+        if last.pid is not None and _alive(last.pid) and holder(layout) is not None:
+            return f"in progress since {last.time} (pid {last.pid})"
+        return (f"cut off (began {last.time}; lpam was killed or the power failed): "
+                f"`{last.command or 'lpam apply'}` goes on from where it stood")
+    again = f"; `{last.command}` goes on from where it stood" \
+        if last.result == "interrupted" and last.command else ""
+    return f"{last.result} at {last.time}{why}{again}"
+
+
+def _alive(pid: int) -> bool:
+    import os
+
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _cutover_footer(record: StateRecord) -> list[str]:

@@ -1,16 +1,22 @@
 """The agent's configuration (`<root>/etc/lpam/agent.yaml`) and what it records of its
-passes (`<root>/var/lib/lpam/status.json`).
+passes (`<root>/var/lib/lpam/status.json`, also the body of the branch `status/<vehicle>`
+it publishes, see reconciler/publication.py).
 
 ```yaml
 version: 1
 source: {url: "https://github.com/our-lab/fleet-state", branch: main}
 vehicle_file: /etc/libpanda.d/vin      # or `vehicle: rav4-07`; default: the hostname
 interval_seconds: 300
+heartbeat_seconds: 21600               # publish an unchanged status this often (6 h)
 trust: {allowed_signers: /etc/lpam/allowed_signers}   # optional: signed commits only
 ```
 
 In the source repository, `vehicles/<id>.yaml` is this vehicle's desired state when it
 exists, else `desired-state.yaml` at its root.
+
+The agent status is a document lpam writes, so it changes only through a version and a
+migration (migrations/agent_status_v1_to_v2.py): version 2 names the result `deferred`,
+the file the vehicle follows (`follows`) and its last publication (`publication`).
 """
 
 from __future__ import annotations
@@ -82,6 +88,11 @@ class AgentConfig(BaseModel):
         default=None, description="a file holding the id (e.g. /etc/libpanda.d/vin)")
     interval_seconds: float = Field(default=300, ge=10, le=86400,
                                     description="seconds between passes of `lpam agent`")
+    heartbeat_seconds: float = Field(
+        default=6 * 3600, ge=300, le=7 * 86400,
+        description="publish this vehicle's status at least this often even when it did not "
+        "change, so that the fleet sees the car is alive (between 5 minutes and 7 days; "
+        "at least interval_seconds)")
     trust: Trust | None = Field(default=None, description="apply only signed commits")
     gate_wait_seconds: float = Field(
         default=0, ge=0, le=3600, description="how long a pass may wait for closed update "
@@ -102,6 +113,16 @@ class AgentConfig(BaseModel):
             raise ValueError("give `vehicle:` or `vehicle_file:`, not both")
         return value
 
+    @field_validator("heartbeat_seconds")
+    @classmethod
+    def _heartbeat(cls, value: float, info: ValidationInfo) -> float:
+        interval = info.data.get("interval_seconds")
+        if interval is not None and value < interval:
+            raise ValueError(f"{value:g} is shorter than interval_seconds "
+                             f"({interval:g}): every pass would publish; give at least the "
+                             "interval (the default is 21600, 6 hours)")
+        return value
+
 
 Result = Literal["applied", "nothing to do", "offline", "failed", "rolled back", "fetched",
                  "stopped", "deferred"]
@@ -118,19 +139,40 @@ class Attempt(BaseModel):
     reason: str | None = None
 
 
+Published = Literal["pushed", "refused", "failed"]
+
+
+class Publication(BaseModel):
+    """The last attempt to publish this status to `status/<vehicle>`: when, the fingerprint
+    of what counted in it (reconciler/publication.py), and whether the fleet repository
+    took it (`pushed`), refused pushes from this car (`refused`: read-only, no write
+    access), or could not be reached (`failed`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    time: str
+    fingerprint: str
+    result: Published
+    reason: str | None = None
+
+
 class AgentStatus(BaseModel):
     """What the agent knows of its source: the revision it would apply, the last one it
-    applied, the last attempt (a failed revision is not tried again until a new one
-    arrives), and the last passes."""
+    applied, the file of the source it follows, the last attempt (a failed revision is not
+    tried again until a new one arrives), the last passes, and its last publication."""
 
     model_config = ConfigDict(extra="forbid")
 
-    version: Literal[1] = 1
+    version: Literal[2] = 2
     vehicle: str | None = None
+    follows: str | None = Field(
+        default=None, description="the desired-state file of the source this vehicle "
+        "follows at desired_revision: vehicles/<id>.yaml or desired-state.yaml")
     desired_revision: str | None = None
     applied_revision: str | None = None
     last_attempt: Attempt | None = None
     passes: list[Attempt] = Field(default_factory=list)
+    publication: Publication | None = None
 
     def failed(self, revision: str) -> bool:
         """Whether `revision` was tried and failed (so it is not tried again)."""

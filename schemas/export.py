@@ -25,7 +25,7 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "state-record.v4.schema.json": StateRecord,
     "plan.v1.schema.json": Plan,
     "agent.v1.schema.json": AgentConfig,
-    "agent-status.v1.schema.json": AgentStatus,
+    "agent-status.v2.schema.json": AgentStatus,
 }
 FOLDER = Path(__file__).resolve().parent / "json"
 

@@ -29,6 +29,9 @@ def check_app_name(value: str) -> str:
 
 def check_owner_repo(value: str) -> str:
     if ".." in value or not OWNER_REPO.match(value):
+        if "://" in value or value.startswith(("git@", "/")):
+            raise ValueError("expected 'owner/name' (a GitHub repository); a URL or a path "
+                             "goes under `url:` instead of `repo:`")
         raise ValueError("expected 'owner/name', e.g. jmscslgroup/libpanda-default-apps")
     return value
 

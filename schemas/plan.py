@@ -63,6 +63,7 @@ class StepKind(StrEnum):
     CONFIGURE = "configure"  # new parameters (or user) for the installed generation
     START = "start"
     VERIFY = "verify"  # the health check of a started app; a failure rolls back
+    ADOPT = "adopt"  # the app LPAM installed is the desired one: recorded as lpam's, as it runs
     REMOVE = "remove"
 
 

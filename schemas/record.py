@@ -5,6 +5,17 @@ and a *serial* (incremented on every write), so a saved plan can tell whether th
 changed since it was made. It is rewritten atomically before and after every script an
 apply runs, so after a power cut or a kill it says which scripts finished and which one
 may have been under way (the app's `status` and `run`, see reconciler/state.py).
+
+Version 4 adds what a fault must not erase (RAUC's rule: a slot is good only once it
+proved good): whether the installed app passed its health check (`good`), and the apply
+whose cutover is under way (`cutover`: the good app it would return to, and an automatic
+rollback once begun), so the next run finishes what a kill interrupted instead of
+trusting an app that never proved itself. It also keeps what `lpam status` must not
+guess: the desired state of the last apply (`desired`: what holds are held against,
+whichever file or revision it came from), each repository's commit as of the last apply
+that succeeded (`applied`: a checkout only a failed apply moved is not what runs), and
+the last apply's result from its start (`in progress`) — so one that was cut off shows
+as such, not as the one before it.
 """
 
 from __future__ import annotations
@@ -32,6 +43,9 @@ class RepositoryRecord(BaseModel):
     url: str
     ref: str | None = Field(description="what the desired state asked for")
     commit: str = Field(description="full hash checked out in the store")
+    applied: str | None = Field(
+        default=None, description="its commit as of the last apply that succeeded (None: "
+        "no successful apply has used it yet): a checkout that differs is not what runs")
 
 
 class AppRecord(BaseModel):
@@ -98,16 +112,33 @@ class Stray(BaseModel):
 
 
 ApplyResult = Literal["applied", "failed", "rolled back"]
+LastResult = Literal["applied", "failed", "rolled back", "in progress", "interrupted"]
 
 
 class LastApply(BaseModel):
-    """How the last apply (or rollback) ended, for `lpam status`."""
+    """How the last apply (or rollback) ended, for `lpam status`: written when it begins
+    (`in progress`, with its pid: one whose process is gone was cut off) and when it ends,
+    interrupted (Ctrl-C, SIGTERM) included."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     time: str
-    result: ApplyResult
+    result: LastResult
     reason: str | None = None
+    pid: int | None = Field(default=None, description="the lpam process of an apply in "
+                            "progress")
+    command: str | None = Field(default=None, description="how to run it again (`lpam "
+                                "apply -f FILE`): what an interrupted one's hint says")
+
+
+class DesiredRef(BaseModel):
+    """The desired state an apply worked toward: holds are held against it, whichever
+    file or revision it came from."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    fingerprint: str = Field(description="of its content, not its formatting")
+    source: str = Field(description="the file, or `<repository>@<revision>/<file>`")
 
 
 class HistoryEntry(BaseModel):
@@ -195,6 +226,7 @@ class StateRecord(BaseModel):
     history: list[HistoryEntry] = Field(default_factory=list)
     hold: Hold | None = None
     cutover: Cutover | None = None
+    desired: DesiredRef | None = None
 
     def repository(self, key: str) -> RepositoryRecord | None:
         return next((r for r in self.repositories if r.key == key), None)

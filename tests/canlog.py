@@ -1,9 +1,12 @@
-"""The real drive for the CAN tests, and writers that make recordings of it as the car does.
+"""The drive for the CAN tests, and writers that make recordings of it as the car does.
 
-`recording()` is a 13-minute drive of a RAV4 Hybrid (`shared/data/`, beside the repository
-here and in CI; tests are skipped, saying why, where it is absent). `write_csv` and
+`drive()` is the RAV4 drive that tests/drive.py generates from a speed profile: there in
+every clone. `recorded_drive()` is a real 13-minute drive of a RAV4 Hybrid, read where
+`../shared/data/` lies beside the checkout, for the checks that the generated drive makes
+the same decisions as a real one; without it those tests are skipped, saying why (its
+repository states no licence, so no copy of it is kept here). `write_csv` and
 `write_candump` put frames into the two text formats lpam follows; `CsvWriter` and
-`CandumpWriter` append them in a background thread at the recording's pace, so a test can
+`CandumpWriter` append them in a background thread at the drive's pace, so a test can
 follow a file that grows as libpanda's or `candump -l`'s does — optionally in blocks that
 split lines anywhere, as libpanda's stdio buffer does. Writers stop when their `with`
 block ends, waiting a fraction of a second at most.
@@ -13,7 +16,6 @@ from __future__ import annotations
 
 import functools
 import gzip
-import os
 import re
 import threading
 import time
@@ -26,23 +28,43 @@ import can
 import pytest
 
 from reconciler.adapters.can.csvlog import HEADER
+from tests.drive import SPEED_ID as SPEED_ID
+from tests.drive import candump_line as candump_line
+from tests.drive import frames as generated_frames
 
-RECORDING = "rav4-hybrid-2021-08-13.candump.log"
-SPEED_ID = 0xB4
+RECORDED = "rav4-hybrid-2021-08-13.candump.log"
 TICK = 0.1
 
 
-def recording_path() -> Path | None:
-    """Where the drive is: LPAM_CAN_DRIVE, else `../shared/data/` from the repository root,
-    else its gzip-compressed copy in tests/fixtures (tests/fixtures/README.md)."""
-    named = os.environ.get("LPAM_CAN_DRIVE")
-    root = Path(__file__).resolve().parent.parent
-    candidates = ([Path(named)] if named else []) + [
-        root.parent / "shared/data" / RECORDING, root / "tests/fixtures" / (RECORDING + ".gz")]
-    for candidate in candidates:
-        if candidate.is_file():
-            return candidate
-    return None
+def drive() -> list[can.Message]:
+    """The generated drive's ~62,000 frames (tests/drive.py), made once a process."""
+    return list(generated_frames())
+
+
+def recorded_path() -> Path:
+    """Where the real recording lies when it is there: `../shared/data/` from the checkout."""
+    return Path(__file__).resolve().parent.parent.parent / "shared" / "data" / RECORDED
+
+
+def recorded_drive() -> list[can.Message]:
+    """The real drive's 56,323 frames, read once a process; skips the test, saying why,
+    where it is absent."""
+    return list(_load(_recorded_or_skip()))
+
+
+def recorded_text() -> str:
+    """The real drive as candump text (for tests that read its lines themselves)."""
+    with _text(_recorded_or_skip()) as text:
+        return text.read()
+
+
+def _recorded_or_skip() -> Path:
+    path = recorded_path()
+    if not path.is_file():
+        pytest.skip(f"the recorded RAV4 drive is not at {path} (../shared/data beside the "
+                    "checkout): this check against the real recording is skipped; the "
+                    "generated drive of tests/drive.py stands in for it everywhere else")
+    return path
 
 
 def read_log(path: Path) -> list[can.Message]:
@@ -59,24 +81,6 @@ def _load(path: Path) -> tuple[can.Message, ...]:
 def _text(path: Path) -> TextIO:
     """The log as text, gzip-compressed or not."""
     return gzip.open(path, "rt") if path.suffix == ".gz" else path.open()
-
-
-def recording_text() -> str:
-    """The drive as candump text (for tests that read its lines themselves)."""
-    path = recording_path()
-    if path is None:
-        pytest.skip(f"the recorded drive {RECORDING} is not available")
-    with _text(path) as text:
-        return text.read()
-
-
-def recording() -> list[can.Message]:
-    """The ~56,000 frames of the drive, read once a process; skips the test without it."""
-    path = recording_path()
-    if path is None:
-        pytest.skip(f"the recorded drive {RECORDING} is not in ../shared/data/ beside the "
-                    "repository (or at $LPAM_CAN_DRIVE)")
-    return list(_load(path))
 
 
 def speed_kmh(msg: can.Message) -> float | None:
@@ -113,13 +117,6 @@ def csv_row(msg: can.Message, shift: float = 0.0) -> str:
     stamp = f"{msg.timestamp + shift:.6f}"
     return (f"{stamp},{bus_number(msg.channel)},{msg.arbitration_id},"
             f"{bytes(msg.data).hex()},{len(msg.data)}\n")
-
-
-def candump_line(msg: can.Message, shift: float = 0.0) -> str:
-    """A `candump -l` line, with its newline."""
-    ident = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
-    channel = msg.channel if isinstance(msg.channel, str) else f"can{msg.channel or 0}"
-    return f"({msg.timestamp + shift:.6f}) {channel} {ident}#{bytes(msg.data).hex().upper()}\n"
 
 
 def write_csv(path: Path, frames: Sequence[can.Message], *, shift: float = 0.0,

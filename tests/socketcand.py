@@ -1,4 +1,4 @@
-"""A socketcand server for tests: the recorded drive replayed onto loopback TCP, in the
+"""A socketcand server for tests: a drive (its frames) replayed onto loopback TCP, in the
 protocol python-can's `socketcand` interface speaks.
 
 The kernel here has no SocketCAN, so the real daemon cannot run; this stands in for it as

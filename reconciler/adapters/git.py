@@ -16,6 +16,13 @@ user's edits. A commit whose tree holds a path git must never write (`.git`, `..
 case, NTFS and HFS+ spellings) is refused before anything is written, so that marker never
 names such a commit and the store stays usable until a clean commit arrives.
 
+The store is a cache of the remotes. A read of a checkout that fails is checked by
+`adapters.integrity`: damage (a truncated pack, a lost index) is a `StoreDamagedError`
+naming the repository and what is wrong, anything else stays the bug it is. `damage` runs
+that check up front (plan and apply ask before they read a repository), and `renew`
+replaces a damaged checkout with a fresh clone, keeping the old one as `.<slug>~damaged`
+(its working tree may hold a user's edits, which a damaged index cannot tell).
+
 The network side (what a remote advertises, fetching into a checkout) is
 `adapters.remote.Transport`; this module owns the checkouts and reads their objects.
 """
@@ -27,7 +34,6 @@ import os
 import shutil
 import stat
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -45,13 +51,23 @@ from dulwich.objects import Blob, Commit, ObjectID, SubmoduleEncountered, Tree
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
+from reconciler.adapters import integrity
 from reconciler.adapters.objectsize import object_size
 from reconciler.adapters.remote import RemoteRefs, Transport
+from reconciler.adapters.wire import durable
 from reconciler.atomic import fsync_dir, write_atomic
-from reconciler.errors import GitError, LocalEditsError, RefNotFoundError
+from reconciler.errors import (
+    GitError,
+    LocalEditsError,
+    LpamError,
+    RefNotFoundError,
+    StoreDamagedError,
+)
 from reconciler.layout import Layout, slug
 from reconciler.reading import MIB
 from schemas.names import is_hex_commit, redact
+
+BLOBS_LIMIT = 10_000  # files in one app folder; more is not an app folder to compare
 
 # dulwich.porcelain is imported where it is used, as dulwich.client is in adapters.remote: a
 # no-op plan of pinned repositories reads the store only and should not pay for the network
@@ -98,6 +114,20 @@ class GitStore:
                 if repo is not None:
                     return str(repo.get_config().get((b"remote", b"origin"), b"url"), "utf-8")
             return None
+
+    def location(self, key: str) -> Path:
+        """Where the key's checkout is (or would be), for messages."""
+        return self._layout.repository_dir(key)
+
+    def damage(self, key: str) -> str | None:
+        """What is wrong with the key's checkout (adapters.integrity); None when it is sound
+        or absent. Reads every byte of the packs lpam did not write itself, so it is asked
+        before a repository is used (plan, apply), or after a read failed (status), not on
+        every read."""
+        path = self._layout.repository_dir(key)
+        if not (path / ".git").is_dir():
+            return None
+        return integrity.damage(path)
 
     def has_commit(self, key: str, commit: str) -> bool:
         with self._open(key) as repo:
@@ -175,6 +205,30 @@ class GitStore:
             return sorted(entry.path.decode("utf-8", "replace") for entry in tree.items()
                           if entry.mode is not None and stat.S_ISREG(entry.mode))
 
+    def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
+        """See the `Store` port: every file below `commit:folder` and its blob id."""
+        with self._open(key) as repo:
+            found = None if repo is None else _lookup(repo, commit, folder)
+            if repo is None or found is None or not stat.S_ISDIR(found[0]):
+                return None
+            blobs: dict[str, str] = {}
+            todo: list[tuple[str, ObjectID]] = [("", found[1])]
+            while todo:
+                prefix, sha = todo.pop()
+                tree = repo.object_store[sha]
+                assert isinstance(tree, Tree)
+                for entry in tree.items():
+                    if entry.mode is None or entry.path is None or entry.sha is None:
+                        continue
+                    name = prefix + entry.path.decode("utf-8", "replace")
+                    if stat.S_ISDIR(entry.mode):
+                        todo.append((name + "/", entry.sha))
+                    elif stat.S_ISREG(entry.mode) or stat.S_ISLNK(entry.mode):
+                        blobs[name] = entry.sha.decode("ascii")
+                if len(blobs) > BLOBS_LIMIT:
+                    return None
+            return blobs
+
     def signature(self, key: str, commit: str) -> tuple[bytes | None, bytes]:
         """The commit's signature (its `gpgsig` header, None when unsigned) and what was
         signed (the commit object without that header)."""
@@ -218,17 +272,12 @@ class GitStore:
         if current == url:
             with Repo(str(dest)) as repo:
                 self._transport.fetch_into(repo, url, skip=skip)
+            integrity.remember(dest)
             return
         if dest.exists():
             self._refuse_edits(key, "cannot switch it to " + redact(url))
-        fresh = self._temp(key, "clone")
+        fresh = self._clone(key, url, skip=skip)
         try:
-            with Repo.init(str(fresh)) as repo:
-                config = repo.get_config()
-                config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
-                config.set((b"remote", b"origin"), b"fetch", b"+refs/heads/*:refs/remotes/origin/*")
-                config.write_to_path()
-                self._transport.fetch_into(repo, url, skip=skip)
             if dest.exists():  # rename(2) may replace the empty directory _temp made
                 os.rename(dest, self._temp(key, "old"))
             os.rename(fresh, dest)
@@ -237,6 +286,25 @@ class GitStore:
             raise
         fsync_dir(dest.parent)
         self._sweep(key)
+
+    def renew(self, key: str, url: str) -> Path | None:
+        """Clone `url` afresh in place of the key's checkout, which is kept aside (its
+        path returned; None when there was none). The store is a cache: a damaged checkout
+        is replaced, never repaired. Network first: when the clone fails, nothing moved.
+        Each move is one rename, so after a power cut the key's checkout is the old one,
+        the new one, or absent (then the next fetch clones it)."""
+        self._transport.check(url, "fetch")
+        dest = self._checkout_dir(key)
+        self._sweep(key)
+        fresh = self._clone(key, url)
+        try:
+            aside = self._set_aside(key) if dest.exists() else None
+            os.rename(fresh, dest)
+        except BaseException:
+            shutil.rmtree(fresh, ignore_errors=True)
+            raise
+        fsync_dir(dest.parent)
+        return aside
 
     def adopt(self, key: str, url: str, source: Repo, commits: list[str],
               branches: dict[str, str]) -> None:
@@ -263,21 +331,25 @@ class GitStore:
             fsync_dir(dest.parent)
         wanted = {ObjectID(c.encode("ascii")) for c in commits}
         with Repo(str(dest)) as repo:
+            durable(repo)
             missing = {c for c in wanted if c not in repo.object_store}
             if missing:
                 count, records = source.generate_pack_data(have=set(), want=missing)
                 repo.object_store.add_pack_data(count, records)
+                fsync_dir(dest / ".git" / "objects" / "pack")  # before refs name them
+                integrity.remember(dest)
             if self.origin_url(key) == url:
                 for name, commit in branches.items():
                     repo.refs[Ref(name.encode())] = ObjectID(commit.encode("ascii"))
 
     def push_file(self, key: str, url: str, branch: str, name: str, content: bytes,
-                  message: str) -> str:
-        """Commit `content` as the only file `name` of `branch` (on top of the branch as the
-        last fetch saw it on origin) and push it to `url`; the new commit. Nothing in the
-        checkout moves: the commit is made from objects alone."""
-        from dulwich.objects import Commit
-
+                  message: str, *, when: int, parent: bool = True) -> str:
+        """Commit `content` as the only file `name` of `branch` and push it to `url`; the
+        new commit. With `parent`, the commit goes on top of the branch as the last fetch or
+        push saw it on origin; without, it starts the branch afresh (the server decides
+        whether it accepts that, see `Transport.push`). `when` is the commit's time (epoch
+        seconds, from the caller's clock). Nothing in the checkout moves: the commit is
+        made from objects alone."""
         with self._open(key) as repo:
             if repo is None:
                 raise GitError(f"{key} is not in the repository store")
@@ -286,18 +358,36 @@ class GitStore:
             tree.add(name.encode("utf-8"), 0o100644, blob.id)
             commit = Commit()
             commit.tree = tree.id
-            parent = repo.refs.as_dict(Ref(b"refs/remotes/origin")).get(Ref(branch.encode()))
-            commit.parents = [parent] if parent is not None and parent in repo.object_store \
+            tip = repo.refs.as_dict(Ref(b"refs/remotes/origin")).get(Ref(branch.encode()))
+            commit.parents = [tip] if parent and tip is not None and tip in repo.object_store \
                 else []
             commit.author = commit.committer = b"lpam <lpam@localhost>"
-            commit.commit_time = commit.author_time = int(time.time())
+            commit.commit_time = commit.author_time = when
             commit.commit_timezone = commit.author_timezone = 0
             commit.message = message.encode("utf-8")
+            durable(repo)
             for obj in (blob, tree, commit):
                 repo.object_store.add_object(obj)
             self._transport.push(repo, url, f"refs/heads/{branch}", commit.id.decode("ascii"))
             repo.refs[Ref(f"refs/remotes/origin/{branch}".encode())] = commit.id
             return commit.id.decode("ascii")
+
+    def history_length(self, key: str, branch: str, *, limit: int) -> int:
+        """How many commits origin's `branch` holds as this store last saw it, counted along
+        first parents up to `limit` (0 without the branch): enough to bound a branch this
+        machine writes itself, with no network."""
+        with self._open(key) as repo:
+            if repo is None:
+                return 0
+            sha = repo.refs.as_dict(Ref(b"refs/remotes/origin")).get(Ref(branch.encode()))
+            count = 0
+            while sha is not None and count < limit:
+                found = _commit(repo, sha.decode("ascii"))
+                if found is None:
+                    break
+                count += 1
+                sha = found.parents[0] if found.parents else None
+            return count
 
     def fetch_objects(self, key: str, url: str) -> None:
         """Bring `url`'s commits into the key's object database for a plan to read, moving
@@ -310,6 +400,7 @@ class GitStore:
             return
         with Repo(str(dest)) as repo:
             self._transport.fetch_into(repo, url, mirror=False)
+        integrity.remember(dest)
 
     def checkout(self, key: str, commit: str) -> None:
         """Detach HEAD at `commit` and make the index and working tree match it."""
@@ -349,10 +440,17 @@ class GitStore:
             marker.unlink()
 
     def remove(self, key: str) -> None:
+        """Delete the key's checkout, refusing one with local edits; a damaged one, whose
+        edits cannot be known, is kept aside instead (`.<slug>~damaged`)."""
         dest = self._checkout_dir(key)
         if not dest.exists():
             return
-        self._refuse_edits(key, "cannot remove it")
+        try:
+            self._refuse_edits(key, "cannot remove it")
+        except StoreDamagedError:
+            self._set_aside(key)
+            fsync_dir(dest.parent)
+            return
         doomed = self._temp(key, "old")
         os.rename(dest, doomed)  # one rename: the key's checkout is wholly there or gone
         fsync_dir(dest.parent)
@@ -428,15 +526,51 @@ class GitStore:
             )
         return path
 
+    def _clone(self, key: str, url: str, *, skip: str = "") -> Path:
+        """A new clone of `url` (nothing checked out) in a temporary sibling of the key's
+        checkout, for the caller to rename into place; removed again if the fetch fails."""
+        fresh = self._temp(key, "clone")
+        try:
+            with Repo.init(str(fresh)) as repo:
+                config = repo.get_config()
+                config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
+                config.set((b"remote", b"origin"), b"fetch", b"+refs/heads/*:refs/remotes/origin/*")
+                config.write_to_path()
+                self._transport.fetch_into(repo, url, skip=skip)
+            integrity.remember(fresh)
+        except BaseException:
+            shutil.rmtree(fresh, ignore_errors=True)
+            raise
+        return fresh
+
+    def _set_aside(self, key: str) -> Path:
+        """Move the key's checkout to `.<slug>~damaged` (one rename), replacing what an
+        earlier damage left there: one copy is kept for a person to look at, not a pile."""
+        aside = self._layout.repositories / f".{slug(key)}~damaged"
+        if aside.exists():
+            shutil.rmtree(aside)
+        os.rename(self._layout.repository_dir(key), aside)
+        return aside
+
     @contextlib.contextmanager
     def _open(self, key: str) -> Iterator[Repo | None]:
-        """The checkout of `key`, closed afterwards (dulwich keeps pack files open)."""
+        """The checkout of `key`, closed afterwards (dulwich keeps pack files open). A read
+        that fails on a damaged checkout is a StoreDamagedError naming the damage; a failure
+        on a sound one is raised as it is (a bug, or the disk)."""
         path = self._layout.repository_dir(key)
         if not (path / ".git").is_dir():
             yield None
             return
-        with Repo(str(path)) as repo:
-            yield repo
+        try:
+            with Repo(str(path)) as repo:
+                yield repo
+        except LpamError:
+            raise
+        except Exception as exc:
+            found = integrity.damage(path)
+            if found is None:
+                raise
+            raise StoreDamagedError(key, found, path=path) from exc
 
     def _refuse_edits(self, key: str, doing: str, *, repo: Repo | None = None) -> None:
         edits = _edits(repo) if repo is not None else self.local_edits(key)

@@ -16,9 +16,17 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from reconciler.errors import Deferred, DependencyError, GitError, RefNotFoundError, StepError
+from reconciler.blobs import blob_id
+from reconciler.errors import (
+    Deferred,
+    DependencyError,
+    GitError,
+    RefNotFoundError,
+    StepError,
+    StoreDamagedError,
+)
 from reconciler.execution.ports import Log
-from reconciler.layout import Layout
+from reconciler.layout import Layout, slug
 from reconciler.vehicle.policy import GateState
 
 Folder = tuple[str, dict[str, str]]  # (tree hash, file name → text)
@@ -27,25 +35,58 @@ Folder = tuple[str, dict[str, str]]  # (tree hash, file name → text)
 @dataclass
 class MemoryStore:
     """Remotes (url → commit → folder → Folder) and local checkouts (key → url, head).
-    With a `layout`, each checkout also has its (empty) folder, as observe looks for it."""
+    With a `layout`, each checkout also has its (empty) folder, as observe looks for it.
+    `damaged` (key → what is wrong) is a test's way to damage a checkout: its objects are
+    unreadable, while its origin and HEAD (config and refs, in git) still read."""
 
     layout: Layout | None = None
     remotes: dict[str, dict[str, dict[str, Folder]]] = field(default_factory=dict)
     checkouts: dict[str, tuple[str, str | None]] = field(default_factory=dict)
     fetched: dict[str, set[str]] = field(default_factory=dict)
     fetches: int = 0
+    damaged: dict[str, str] = field(default_factory=dict)
+    aside: dict[str, tuple[str, str | None]] = field(default_factory=dict)
 
     def origin_url(self, key: str) -> str | None:
         return self.checkouts[key][0] if key in self.checkouts else None
 
+    def damage(self, key: str) -> str | None:
+        return self.damaged.get(key) if key in self.checkouts else None
+
+    def _readable(self, key: str) -> None:
+        if self.damage(key) is not None:
+            raise StoreDamagedError(key, self.damaged[key])
+
     def has_commit(self, key: str, commit: str) -> bool:
+        self._readable(key)
         return commit in self.fetched.get(key, set())
 
     def head(self, key: str) -> str | None:
         return self.checkouts[key][1] if key in self.checkouts else None
 
     def local_edits(self, key: str) -> list[str]:
+        self._readable(key)
         return []
+
+    def renew(self, key: str, url: str) -> Path | None:
+        if url not in self.remotes:
+            raise GitError(f"{key}: cannot reach {url}")
+        kept = self._keep_aside(key) if key in self.checkouts else None
+        self.fetch(key, url)
+        return kept
+
+    def _keep_aside(self, key: str) -> Path:
+        """The checkout forgotten, its folder (with a layout) moved where GitStore keeps it."""
+        self.aside[key] = self.checkouts.pop(key)
+        self.damaged.pop(key, None)
+        self.fetched.pop(key, None)
+        path = Path(f".{slug(key)}~damaged")
+        if self.layout is not None:
+            path = self.layout.repositories / path.name
+            shutil.rmtree(path, ignore_errors=True)
+            if self.layout.repository_dir(key).exists():
+                self.layout.repository_dir(key).rename(path)
+        return path
 
     def fetch(self, key: str, url: str) -> None:
         if url not in self.remotes:
@@ -57,17 +98,38 @@ class MemoryStore:
         self.checkouts[key] = (url, self.head(key))
 
     def checkout(self, key: str, commit: str) -> None:
+        self._readable(key)
         if not self.has_commit(key, commit):
             raise RefNotFoundError(f"{key}: commit {commit} is not in the store")
         self.checkouts[key] = (self.checkouts[key][0], commit)
 
     def remove(self, key: str) -> None:
+        if self.damage(key) is not None:
+            self._keep_aside(key)
+            return
         if self.layout is not None:
             shutil.rmtree(self.layout.repository_dir(key), ignore_errors=True)
         self.checkouts.pop(key, None)
         self.fetched.pop(key, None)
 
+    def read_file(self, key: str, commit: str, path: str) -> bytes | None:
+        """A file of a folder (`folder/name`); files outside folders are not modelled."""
+        url = self.origin_url(key)
+        folder, _, name = path.rpartition("/")
+        found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
+        if found is None or not self.has_commit(key, commit) or name not in found[1]:
+            return None
+        return found[1][name].encode("utf-8")
+
+    def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
+        url = self.origin_url(key)
+        found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
+        if found is None or not self.has_commit(key, commit):
+            return None
+        return {name: blob_id(text.encode("utf-8")) for name, text in found[1].items()}
+
     def export_folder(self, key: str, commit: str, folder: str, dest: Path) -> str:
+        self._readable(key)
         url = self.origin_url(key)
         found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
         if found is None or not self.has_commit(key, commit):

@@ -26,7 +26,7 @@ from dulwich.objects import ObjectID
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
-from reconciler.errors import GitError
+from reconciler.errors import GitError, PushRefusedError
 from schemas.names import is_hex_commit, redact
 
 _HEADS = "refs/heads/"
@@ -123,13 +123,17 @@ class Transport:
         repo.refs.import_refs(Ref(b"refs/tags"), tags)
 
     def push(self, repo: Repo, url: str, ref: str, new: str) -> None:
-        """Set the remote's `ref` to the commit `new` of `repo`, sending what it lacks."""
+        """Set the remote's `ref` to the commit `new` of `repo`, sending what it lacks; a
+        `PushRefusedError` when the repository does not take it from us (not a network
+        failure). `new` need not descend from the remote's `ref`: whether that is allowed
+        is the server's to say (git's receive.denyNonFastForwards, a protected branch)."""
         self.check(url, "push to")
         self._ask({"op": "push", "url": url, "repo": repo.path, "ref": ref, "new": new},
                   url, "push to")
 
     def _ask(self, request: dict[str, str], url: str, action: str) -> dict[str, Any]:
-        """Run one operation in a child process; its answer, or a one-line GitError."""
+        """Run one operation in a child process; its answer, or a one-line GitError (a
+        PushRefusedError when the child found a push refused)."""
         from reconciler.adapters import deadline
 
         def failed(reason: str) -> GitError:
@@ -143,6 +147,11 @@ class Transport:
             raise failed(f"cannot start the git client: {exc.strerror}") from None
         if answer is None:
             raise failed("the git client ended without an answer")
+        if "error" in answer and answer.get("refused"):
+            raise PushRefusedError(
+                redact(f"{url} does not accept pushes from this machine ({answer['error']})"),
+                hint="the repository is read-only here (a mirror, a daemon without "
+                "receive-pack, a token or key without write access, a protected branch)")
         if "error" in answer:
             raise failed(str(answer["error"]))
         return answer

@@ -7,14 +7,20 @@ the `--network-timeout` deadline passes or lpam is interrupted. dulwich has no t
 waits as long as the ssh binary does, and a server dripping one byte at a time never trips
 a per-read timeout), so killing a process is the only bound that holds on every transport.
 
-Protocol, owned by this module: the child gets one request (`{"op": "ls-remote"|"fetch",
-...}`) and answers with one JSON document on its pipe, either `{"refs": {...}, "head": ...}`
-or `{"error": "one line"}`. A child whose pipe reaches end of file has lost lpam (killed)
-and kills its own group, so no ssh or fetch outlives lpam.
+Protocol, owned by this module: the child gets one request (`{"op": "ls-remote"|"fetch"|
+"push", ...}`) and answers with one JSON document on its pipe, either `{"refs": {...},
+"head": ...}` (a push: `{"pushed": ref}`) or `{"error": "one line"}`, with `"refused": true`
+when a push reached the repository and it does not accept it from us (read-only, no write
+access, a protected branch) rather than the network failing. A child whose pipe reaches
+end of file has lost lpam (killed) and kills its own group, so no ssh or fetch outlives
+lpam.
 
 A fetch only adds a pack to the repository's object store (dulwich writes it to a temporary
 file and renames it into place when complete); the parent writes refs after the child has
-succeeded, so a child killed half-way changes nothing that lpam reads.
+succeeded, so a child killed half-way changes nothing that lpam reads. The pack, its index
+and their folder are fsynced before the child answers: refs written after a power cut
+must not name objects the cut took back (a pack still in the page cache comes back empty,
+and the store would be damaged).
 """
 
 from __future__ import annotations
@@ -27,14 +33,17 @@ import sys
 import threading
 from collections.abc import Callable, Iterator, Mapping
 from collections.abc import Set as AbstractSet
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
 from dulwich.errors import GitProtocolError, NotGitRepository
-from dulwich.object_store import peel_sha
+from dulwich.object_store import DiskObjectStore, peel_sha
 from dulwich.objects import ObjectID
 from dulwich.refs import Ref
 from dulwich.repo import Repo
+
+from reconciler.atomic import fsync_dir
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -85,15 +94,27 @@ def fetch(url: str, repo_path: str, skip: str = "") -> dict[str, Any]:
         return _is_tip(name) and not (skipped and name.startswith(skipped))
 
     with Repo(repo_path) as repo:
+        durable(repo)
 
         def wanted(refs: Mapping[Ref, ObjectID | None], depth: int | None = None) -> list[ObjectID]:
             tips = [sha for name, sha in refs.items() if kept(name) and sha is not None]
             return [sha for sha in dict.fromkeys(tips) if sha not in repo.object_store]
 
         result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)
+    packs = os.path.join(repo_path, ".git", "objects", "pack")
+    if os.path.isdir(packs):
+        fsync_dir(Path(packs))  # the renames that put the pack and its index in place
     refs = {name: sha for name, sha in _text_refs(result.refs).items()
             if not name.endswith(_PEELED.decode()) and not (skip and name.startswith(skip))}
     return {"refs": refs}
+
+
+def durable(repo: Repo) -> None:
+    """Have `repo` fsync each pack, pack index and loose object it writes (git's
+    core.fsyncObjectFiles), so that what names them later is never written first."""
+    store = repo.object_store
+    if isinstance(store, DiskObjectStore):
+        store.fsync_object_files = True
 
 
 def push(url: str, repo_path: str, ref: str, new: str) -> dict[str, Any]:
@@ -112,9 +133,33 @@ def push(url: str, repo_path: str, ref: str, new: str) -> dict[str, Any]:
         result = client.send_pack(path.encode("utf-8"), update, generate_pack_data=pack)
     refused = {name.decode("utf-8", "replace"): why for name, why in
                (result.ref_status or {}).items() if why is not None}
-    if refused:
-        return {"error": "; ".join(f"{name}: {why}" for name, why in refused.items())}
+    if refused:  # the server got the update and declined it: a refusal, whatever its words
+        return {"error": "; ".join(f"{name}: {why}" for name, why in refused.items()),
+                "refused": True}
     return {"pushed": ref}
+
+
+_REFUSALS = ("denied", "not exported", "service not enabled", "forbidden", "not allowed",
+             "read-only", "read only", "unauthorized", "no valid credentials",
+             "authentication", "http resp 401", "http resp 403", "declined",
+             "protected branch")
+"""How servers say that they do not take a push from this client, lower-cased: git
+daemon without receive-pack ("access denied or repository not exported", with
+--informative-errors "service not enabled"), GitHub and GitLab over ssh ("Permission to
+… denied", "not allowed to push"), HTTP 401 and 403, hooks ("pre-receive hook declined")."""
+
+
+def refusal(exc: BaseException) -> bool:
+    """Whether a failed push was refused by the repository (read-only for this client, no
+    write access, a protected branch): asking again every few minutes cannot help, unlike
+    a network that failed. Judged on the whole message (ssh puts the server's words on any
+    of its stderr lines)."""
+    from dulwich.client import HTTPUnauthorized
+
+    if isinstance(exc, HTTPUnauthorized):
+        return True
+    text = str(exc).lower()
+    return any(words in text for words in _REFUSALS)
 
 
 def _is_tip(name: bytes) -> bool:
@@ -187,6 +232,8 @@ def answer(request: dict[str, str]) -> dict[str, Any]:
             return push(request["url"], request["repo"], request["ref"], request["new"])
         return fetch(request["url"], request["repo"], request.get("skip", ""))
     except _transport_errors() as exc:
+        if request["op"] == "push" and refusal(exc):
+            return {"error": reason(exc), "refused": True}
         return {"error": reason(exc)}
     except Exception as exc:  # a hostile server's garbage, or a bug: one line
         return {"error": f"unexpected {type(exc).__name__} in the git client: {reason(exc)}"}

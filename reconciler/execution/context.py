@@ -24,7 +24,7 @@ from reconciler.execution.ports import (
 )
 from reconciler.layout import Layout
 from reconciler.state import write_record
-from schemas.record import AppRecord, StateRecord
+from schemas.record import AppRecord, DesiredRef, StateRecord
 
 
 def new_run() -> str:
@@ -51,6 +51,7 @@ class Context:
     gate_wait: float = 0.0  # seconds the cutover may wait for closed gates to open
     listener: Listener | None = None  # the vehicle's bus, for `health.can`
     command: str = "lpam apply"  # what a user runs to resume this one (said in errors)
+    desired: DesiredRef | None = None  # what this apply works toward (holds hold against it)
 
     def dependencies(self) -> DependencyPorts:
         if self.deps is None:  # a caller that plans dependencies must give their ports

@@ -21,16 +21,18 @@ from collections.abc import Callable
 from concurrent.futures import CancelledError
 
 from reconciler import generations
-from reconciler.errors import Deferred, LpamError, StateWriteError, StopRequested
+from reconciler.errors import Deferred, LpamError, StateWriteError, StopRequested, Terminated
 from reconciler.execution.context import Context
 from reconciler.execution.journal import Journal
 from reconciler.execution.ports import Gate, Held
 from reconciler.execution.recovery import (
     AdvisoryJournal,
     begin_cutover,
+    begun,
     fail,
     finish,
     finish_pending,
+    interrupted,
     journalled,
     pending,
     returns_to,
@@ -56,11 +58,17 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
         _execute(plan, ctx, journal, progress, record_result=record_result, keep=keep)
     except StateWriteError as exc:  # a full disk: say where the record left the car
         raise unwritable_error(ctx, exc) from None
+    except (KeyboardInterrupt, Terminated):
+        if record_result:
+            interrupted(ctx)
+        raise
 
 
 def _execute(plan: Plan, ctx: Context, journal: AdvisoryJournal,
              progress: Callable[[str], None], *, record_result: bool, keep: int) -> None:
-    ctx.save(ctx.record)  # as read: settled, strays adopted — before any exit file is pruned
+    # As read (settled, strays adopted) — before any exit file is pruned; an apply says
+    # from its start that it is under way, and toward which desired state.
+    ctx.save(begun(ctx) if record_result else ctx.record)
     previous = returns_to(ctx.record, generations.present(ctx.layout)) if record_result \
         else ctx.record.app
     cut_off = pending(ctx.record) if record_result else None

@@ -20,9 +20,19 @@ if TYPE_CHECKING:
 
 
 class Store(Protocol):
-    """The repository store: one checkout per app repository, objects fetched from remotes."""
+    """The repository store: one checkout per app repository, objects fetched from remotes.
+
+    It is a cache of the remotes: a read of a damaged checkout raises StoreDamagedError
+    naming it; `damage` says what is wrong (None: sound or absent) without raising, and
+    `renew` fetches the repository afresh in place of its checkout, keeping the old one
+    aside (its path; None when there was none) and moving nothing when the fetch fails.
+    `remove` of a damaged checkout keeps it aside as well."""
 
     def origin_url(self, key: str) -> str | None: ...
+
+    def damage(self, key: str) -> str | None: ...
+
+    def renew(self, key: str, url: str) -> Path | None: ...
 
     def has_commit(self, key: str, commit: str) -> bool: ...
 
@@ -38,6 +48,17 @@ class Store(Protocol):
 
     def export_folder(self, key: str, commit: str, folder: str, dest: Path) -> str:
         """Copy `commit:folder` into the new directory `dest`; the folder's tree hash."""
+        ...
+
+    def read_file(self, key: str, commit: str, path: str) -> bytes | None:
+        """The regular file `commit:path` (None without it; a link is not followed)."""
+        ...
+
+    def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
+        """Each file under `commit:folder` (its path inside the folder, `/`-separated) and
+        its git blob id; None without that folder or with more files than an app has.
+        Blob ids name content only, so a copy of the folder on disk can be told equal
+        whatever its files' modes (adopting an app LPAM installed)."""
         ...
 
 

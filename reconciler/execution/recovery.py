@@ -16,6 +16,8 @@ is still exact: the error says what it shows and what the next apply will do fro
 
 from __future__ import annotations
 
+import contextlib
+import os
 from collections.abc import Callable
 
 from reconciler import generations
@@ -113,6 +115,24 @@ def returns_to(record: StateRecord, layout_generations: frozenset[GenerationKey]
                 GenerationKey.of(entry.app, entry.generation) in layout_generations:
             return entry.installed()
     return app
+
+
+def begun(ctx: Context) -> StateRecord:
+    """The record as an apply begins: its result `in progress` (with this process, so one
+    that is gone reads as cut off) and the desired state it works toward."""
+    last = LastApply(time=ctx.clock().isoformat(timespec="seconds"), result="in progress",
+                     pid=os.getpid(), command=ctx.command)
+    return ctx.record.model_copy(update={"last_apply": last,
+                                         "desired": ctx.desired or ctx.record.desired})
+
+
+def interrupted(ctx: Context) -> None:
+    """Ctrl-C or SIGTERM: say so in the record (best effort: it is how the apply ended)."""
+    last = LastApply(time=ctx.clock().isoformat(timespec="seconds"), result="interrupted",
+                     reason="interrupted (Ctrl-C or SIGTERM); where it stood is recorded",
+                     command=ctx.command)
+    with contextlib.suppress(LpamError):
+        ctx.save(ctx.record.model_copy(update={"last_apply": last}))
 
 
 def begin_cutover(ctx: Context, previous: AppRecord | None) -> None:
@@ -233,8 +253,13 @@ def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
             continue
         history.append(HistoryEntry.of(
             app, time=when, result="rolled back" if outcome == "rolled back" else "applied"))
+    repositories = ctx.record.repositories
+    if result == "applied":  # what runs now is what these checkouts hold
+        repositories = [r.model_copy(update={"applied": r.commit}) for r in repositories]
     ctx.save(ctx.record.model_copy(update={
-        "last_apply": LastApply(time=when, result=result, reason=reason),
+        "last_apply": LastApply(time=when, result=result, reason=reason,
+                                command=None if result == "applied" else ctx.command),
+        "repositories": repositories,
         "history": history[-20:],
         "hold": hold_after(ctx.record, result),
         "cutover": ctx.record.cutover if result == "failed" else None,

@@ -26,7 +26,15 @@ from pathlib import Path
 from typing import Literal
 
 from reconciler import generations
-from reconciler.errors import DependencyError, GitError, HealthError, ServiceError, StepError
+from reconciler.errors import (
+    DependencyError,
+    GitError,
+    HealthError,
+    ServiceError,
+    StepError,
+    StoreDamagedError,
+)
+from reconciler.execution import cache
 from reconciler.execution.context import Context
 from reconciler.execution.supervision import await_unit, log_tail, runtime, settle, unit_for
 from reconciler.generations import Generation
@@ -58,7 +66,12 @@ def check_out(step: Step, ctx: Context) -> None:
     """The checkout's work on its own repository, which touches nothing another
     repository's checkout does: the executor runs several at once (record_checkout after)."""
     key, url, commit = _arg(step, "key"), _arg(step, "url"), _arg(step, "commit")
-    if ctx.store.origin_url(key) != url or not ctx.store.has_commit(key, commit):
+    try:
+        present = ctx.store.origin_url(key) == url and ctx.store.has_commit(key, commit)
+    except StoreDamagedError as exc:  # since a saved plan was made: the store is a cache
+        ctx.log(cache.renew(ctx.store, key, url, exc.damage))
+        present = ctx.store.has_commit(key, commit)
+    if not present:
         ctx.store.fetch(key, url)
     if ctx.store.head(key) != commit:
         ctx.store.checkout(key, commit)
@@ -67,8 +80,11 @@ def check_out(step: Step, ctx: Context) -> None:
 def record_checkout(step: Step, ctx: Context) -> None:
     key, url, commit = _arg(step, "key"), _arg(step, "url"), _arg(step, "commit")
     ref = step.args.get("ref")
+    before = ctx.record.repository(key)
+    # what ran stays what ran until the apply succeeds (the same URL: the same repository)
+    applied = before.applied if before is not None and before.url == url else None
     entry = RepositoryRecord(key=key, url=url, ref=ref if isinstance(ref, str) else None,
-                             commit=commit)
+                             commit=commit, applied=applied)
     others = [r for r in ctx.record.repositories if r.key != key]
     ctx.save(ctx.record.model_copy(update={"repositories": sorted([*others, entry],
                                                                   key=lambda r: r.key)}))
@@ -366,6 +382,24 @@ def install(step: Step, ctx: Context) -> None:
     _lifecycle(ctx, app, "install", "installing", "installed")
 
 
+def adopt(step: Step, ctx: Context) -> None:
+    """LPAM's app is the desired one as it is: its record becomes lpam's (running if its
+    unit ran), then its path leads to the generation staged from git (same files; LPAM's
+    copy is moved aside, not deleted). No script runs: nothing that runs is touched."""
+    gen = _wanted(step, ctx)
+    folder = _arg(step, "folder")
+    place = ctx.layout.generation_dir(gen.app, gen.generation)
+    if not place.is_dir():
+        raise StepError(f"{gen.app}: generation {gen.generation} was not staged")
+    status: AppStatus = "running" if _optional(step, "running") == "yes" else "installed"
+    app = _record(gen, _optional(step, "user")).model_copy(
+        update={"status": status, "good": True})
+    strays = [s for s in ctx.record.strays if s.folder != folder]
+    ctx.save(ctx.record.model_copy(update={"app": app, "strays": strays}))
+    appdir.point(ctx.layout, gen.folder, place)
+    appdir.set_current(ctx.layout, gen.folder)
+
+
 def configure(step: Step, ctx: Context) -> None:
     """New parameters (or user) for the installed generation; a unit lpam wrote is
     rewritten so that its next start has them."""
@@ -457,6 +491,7 @@ def prune(ctx: Context, *, keep: int = 3) -> None:
     if record.app is not None:
         kept.add(GenerationKey.of(record.app.name, record.app.generation))
     generations.prune(ctx.layout, kept)
+    appdir.keep_offered(ctx.layout, ctx.store, record)
     _collect_dependencies(ctx)
     pending = {f"{r}.exit" for r in [record.app.run if record.app else None,
                                       *(s.run for s in record.strays)] if r}
@@ -495,4 +530,5 @@ RUNNERS: dict[StepKind, Callable[[Step, Context], None]] = {
     StepKind.CONFIGURE: configure,
     StepKind.START: start,
     StepKind.VERIFY: verify,
+    StepKind.ADOPT: adopt,
 }

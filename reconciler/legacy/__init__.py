@@ -26,7 +26,7 @@ result (`import_lpam`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -85,11 +85,14 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Imported:
-    """The converted desired state (plain data) and what to tell the operator about it."""
+    """The converted desired state (plain data) and what to tell the operator about it;
+    `branches`: the branch of each repository pinned to the commit LPAM's clone holds,
+    kept beside the pin as a comment."""
 
     desired: dict[str, Any]
     source: Path
     notes: tuple[str, ...]
+    branches: dict[str, str] = field(default_factory=dict)
 
 
 def import_lpam(etc_dir: Path) -> str:
@@ -110,7 +113,7 @@ def import_lpam(etc_dir: Path) -> str:
             path=imported.source, hint="fix the LPAM file, then import again",
         ) from None
     header = "\n".join(wrap_note(note) for note in imported.notes)
-    return dump(_document(imported.desired), header=header)
+    return dump(_document(imported.desired, imported.branches), header=header)
 
 
 # --- converting (pure) --------------------------------------------------------------------
@@ -153,17 +156,45 @@ def convert(files: LpamFiles) -> Imported:
     for name, text in files.texts.items():
         if name.endswith("/rosRepositories.csv"):
             notes += ros_notes(name, text)
+    branches = _pin_to_clones(desired["repositories"], files)
+    if branches:
+        notes.append("Repositories are pinned to the commit LPAM's clone holds (the branch "
+                     "is kept as a comment): lpam takes over what is installed as it is, "
+                     "then follows the branch once you write it back as the ref.")
     notes.append("Review this file, then run `lpam plan` with it.")
-    return Imported(desired, etc / used[0], tuple(notes))
+    return Imported(desired, etc / used[0], tuple(notes), branches)
 
 
-def _document(desired: dict[str, Any]) -> Any:
-    """The desired state as a ruamel map, so the output can explain an empty app."""
+def _pin_to_clones(repositories: list[dict[str, str]], files: LpamFiles) -> dict[str, str]:
+    """Each repository LPAM has a clone of is pinned to the commit that clone holds: the
+    apps LPAM installed came from there, so an app already installed from it is the
+    desired one and is adopted without a restart. Returns repository → its branch."""
+    commits = {f"{c.owner}/{c.repo}": c.commit for c in files.clones if c.commit}
+    branches = {}
+    for spec in repositories:
+        commit = commits.get(spec["repo"])
+        if commit is None or spec.get("ref") == commit:  # none, or already that commit
+            continue
+        branches[spec["repo"]] = spec.get("ref") or "the default branch"
+        spec["ref"] = commit
+    return branches
+
+
+def _document(desired: dict[str, Any], branches: dict[str, str]) -> Any:
+    """The desired state as a ruamel map, so the output can explain an empty app and say
+    which branch a pinned repository follows."""
     from ruamel.yaml.comments import CommentedMap
 
     out = CommentedMap()
     out["version"] = desired["version"]
-    out["repositories"] = [dict(spec) for spec in desired["repositories"]]
+    repositories = []
+    for spec in desired["repositories"]:
+        entry = CommentedMap(spec)
+        branch = branches.get(spec["repo"])
+        if branch is not None:
+            entry.yaml_add_eol_comment(f"{comment_safe(branch)}: where LPAM's clone was", "ref")
+        repositories.append(entry)
+    out["repositories"] = repositories
     out["app"] = desired["app"]
     if desired["app"] is None:
         out.yaml_add_eol_comment("no app: LPAM had none installed", "app")

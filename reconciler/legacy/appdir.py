@@ -9,7 +9,9 @@ names one whole generation, never a half-copied folder. Whatever script runs is 
 through that path, with that path as its working directory.
 
 On a vehicle that used LPAM the path may be LPAM's own copy of the folder (a directory):
-it is moved, not deleted, under `var/lib/lpam/replaced/`. Where LPAM's manifest exists,
+it is moved, not deleted, under `var/lib/lpam/replaced/`. There, every other app the
+desired repositories offer keeps a folder too, as LPAM's `-p` kept them, so that the old
+tool's `-d` and `-i` still work (`keep_offered`). Where LPAM's manifest exists,
 its `current:` (and the older `app` file) names the app lpam installed, so LPAM's own
 tools and the libpanda scripts that read it still see the truth.
 """
@@ -17,14 +19,20 @@ tools and the libpanda scripts that read it still see the truth.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from reconciler.atomic import fsync_dir, write_atomic
-from reconciler.errors import ConfigError, StepError
+from reconciler.errors import ConfigError, LpamError, StepError
 from reconciler.layout import Layout, slug
 from reconciler.legacy.files import APP_FILE, MAX_BYTES, YAML_MANIFEST
 from reconciler.reading import read_bounded
+
+if TYPE_CHECKING:
+    from reconciler.execution.ports import Store
+    from schemas.record import StateRecord
 
 
 def point(layout: Layout, folder: str, target: Path) -> Path:
@@ -34,7 +42,12 @@ def point(layout: Layout, folder: str, target: Path) -> Path:
         return link
     link.parent.mkdir(parents=True, exist_ok=True)
     if link.exists() and not link.is_symlink():
-        _move_aside(layout, link)
+        if forget_export(layout, folder):
+            import shutil
+
+            shutil.rmtree(link)  # a folder lpam exported itself (keep_offered)
+        else:
+            _move_aside(layout, link)
     tmp = link.parent / f".{folder}.lpam-{os.getpid()}"
     with contextlib.suppress(FileNotFoundError):
         tmp.unlink()
@@ -140,3 +153,98 @@ def service_of(folder: Path) -> str | None:
         return check_unit_name(words[0].decode("utf-8", "replace")) if words else None
     except (FileNotFoundError, NotADirectoryError, ConfigError, ValueError):
         return None
+
+
+EXPORTED = "exported-folders.json"  # under var/lib/lpam: folders lpam wrote, by commit
+
+
+def keep_offered(layout: Layout, store: Store, record: StateRecord) -> None:
+    """On a vehicle that used LPAM, every app the desired repositories offer keeps its
+    folder in `/etc/libpanda.d/apps/`, as LPAM's `-p` left them (its `-d` and `-i` read
+    them): a folder missing (an app lpam uninstalled) is exported from the repository at
+    its commit, and one lpam exported is refreshed when that commit moved. A folder LPAM
+    made is never touched, nor the installed app's link."""
+    if not _used_lpam(layout):
+        return
+    exported = _exported(layout)
+    before = dict(exported)
+    installed = None if record.app is None else record.app.path
+    for repo in record.repositories:
+        for folder, path in _offered(store, repo.key, repo.commit):
+            if installed is not None and folder == _folder_of(installed):
+                continue
+            place = layout.libpanda_apps / folder
+            ours = exported.get(folder)
+            if place.is_symlink() and not place.exists():
+                place.unlink()  # a generation that is gone
+            if place.exists() and (ours is None or ours == repo.commit or place.is_symlink()):
+                continue
+            _export(layout, store, repo.key, repo.commit, path, place)
+            exported[folder] = repo.commit
+    if exported != before:
+        write_atomic(layout.var / EXPORTED,
+                     json.dumps(exported, indent=2, sort_keys=True) + "\n")
+
+
+def _used_lpam(layout: Layout) -> bool:
+    return (layout.libpanda / YAML_MANIFEST).is_file() or (layout.libpanda / APP_FILE).is_file()
+
+
+def _folder_of(path: str) -> str:
+    from reconciler.planning.model import app_folder
+
+    return app_folder(path)
+
+
+def _offered(store: Store, key: str, commit: str) -> list[tuple[str, str]]:
+    """(folder, path in the repository) of each app the catalog at `commit` lists."""
+    from reconciler.documents import parse_catalog
+    from schemas.catalog import CATALOG_FILE
+
+    try:
+        data = store.read_file(key, commit, CATALOG_FILE)
+        if data is None:
+            return []
+        catalog = parse_catalog(Path(f"{key}@{commit[:12]}/{CATALOG_FILE}"),
+                                data.decode("utf-8", "replace"))
+    except LpamError:
+        return []  # a catalog lpam cannot read offers nothing here; the plan says why
+    return [(_folder_of(app.path), app.path) for app in catalog.apps]
+
+
+def _exported(layout: Layout) -> dict[str, str]:
+    try:
+        data = json.loads(read_bounded(layout.var / EXPORTED, limit=MAX_BYTES,
+                                       follow_symlinks=False))
+    except (FileNotFoundError, ConfigError, ValueError):
+        return {}
+    return {str(k): str(v) for k, v in data.items()} if isinstance(data, dict) else {}
+
+
+def _export(layout: Layout, store: Store, key: str, commit: str, path: str,
+            place: Path) -> None:
+    """The folder at `commit`, put in place whole (exported beside it, then renamed)."""
+    import shutil
+
+    tmp = place.parent / f".{place.name}.lpam-export-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        store.export_folder(key, commit, path, tmp)
+    except LpamError:
+        shutil.rmtree(tmp, ignore_errors=True)
+        return  # not there at that commit: nothing to keep
+    if place.is_dir() and not place.is_symlink():
+        shutil.rmtree(place)  # an older export of lpam's own
+    os.replace(tmp, place)
+    fsync_dir(place.parent)
+
+
+def forget_export(layout: Layout, folder: str) -> bool:
+    """Whether the folder at `folder`'s place is one lpam exported (then it is lpam's to
+    replace with the installed app's link, not LPAM's to keep aside)."""
+    exported = _exported(layout)
+    if folder not in exported:
+        return False
+    del exported[folder]
+    write_atomic(layout.var / EXPORTED, json.dumps(exported, indent=2, sort_keys=True) + "\n")
+    return True

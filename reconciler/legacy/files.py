@@ -8,6 +8,7 @@ of LPAM's files are defined here, as are the limits on what is read.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +23,7 @@ YAML_MANIFEST = "app-manifest.yaml"
 YAML_BACKUP = "app-manifest.yaml.bak"  # LPAM's copy of an era-3 manifest after migrating it
 TOP_FILES = (YAML_MANIFEST, CSV_MANIFEST, APP_FILE, YAML_BACKUP)
 MAX_BYTES = 1024 * 1024
+_HEX40 = re.compile(r"[0-9a-f]{40}")
 
 
 @dataclass(frozen=True)
@@ -31,6 +33,7 @@ class Clone:
     owner: str
     repo: str
     head: str | None  # text of .git/HEAD; None when absent or unreadable
+    commit: str | None = None  # the commit HEAD resolves to (a branch's ref, packed or not)
 
 
 @dataclass(frozen=True)
@@ -67,9 +70,10 @@ def gather(etc_dir: Path) -> LpamFiles:
         if ros.is_file():
             texts[f"apps/{app}/rosRepositories.csv"] = _read(ros)
     clones = tuple(
-        Clone(owner.name, repo.name, _head(repo))
+        Clone(owner.name, repo.name, head, _commit(repo, head))
         for owner in _subdirs(etc_dir / "apps-repositories")
         for repo in _subdirs(owner)
+        for head in [_head(repo)]
     )
     return LpamFiles(etc_dir, texts, apps, clones, apps_dir.is_dir())
 
@@ -108,6 +112,32 @@ def _head(clone: Path) -> str | None:
         return read_bounded(clone / ".git" / "HEAD", limit=4096).decode("utf-8")
     except (OSError, ConfigError, UnicodeDecodeError):
         return None
+
+
+def _commit(clone: Path, head: str | None) -> str | None:
+    """The commit the clone's HEAD is at: its branch's loose ref, else its line in
+    packed-refs, else HEAD itself when detached. None when it cannot be told."""
+    text = (head or "").strip()
+    if not text.startswith("ref: "):
+        return text if _HEX40.fullmatch(text) else None
+    ref = text[len("ref: "):]
+    if ".." in ref or not ref.startswith("refs/heads/"):
+        return None
+    git = clone / ".git"
+    try:
+        loose = read_bounded(git / ref, limit=4096).decode("ascii").strip()
+        return loose if _HEX40.fullmatch(loose) else None
+    except (OSError, ConfigError, UnicodeDecodeError):
+        pass
+    try:
+        packed = read_bounded(git / "packed-refs", limit=MAX_BYTES).decode("utf-8", "replace")
+    except (OSError, ConfigError):
+        return None
+    for line in packed.splitlines():
+        sha, _, name = line.partition(" ")
+        if name.strip() == ref and _HEX40.fullmatch(sha):
+            return sha
+    return None
 
 
 def comment_safe(text: str) -> str:

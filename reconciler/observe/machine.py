@@ -16,6 +16,7 @@ from reconciler import generations
 from reconciler.execution.journal import interrupted_steps
 from reconciler.layout import Layout
 from reconciler.legacy import appdir
+from reconciler.observe.adoption import adoptable
 from reconciler.planning.model import AppTarget, DepsObserved, Observed, RepoObserved, Targets
 from reconciler.state import read_record
 
@@ -49,6 +50,7 @@ def observe(layout: Layout, store: Store, targets: Targets,
         live=live_state(record.app.service if record.app else None, services),
         stray_live=_taken_over(layout, record, services),
         deps=dependencies(layout, targets.app, record, deps),
+        adopt=adoptable(layout, store, record, targets) if record.strays else None,
     )
 
 

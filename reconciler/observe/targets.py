@@ -12,6 +12,11 @@ exact — how depends on the `Fetch` mode:
   never moves a checkout, so a plan changes nothing anyone could see;
 - `OFFLINE` (`plan --offline`): no network at all; branches and tags resolve to what the
   last fetch saw, and what is not local stays "known after fetch".
+
+Before a repository is read, its copy in the store is checked (`store.damage`): the store
+is a cache, so apply (`CHECKOUT`) fetches a damaged copy anew and says so, keeping the old
+one aside, while a plan, which must change nothing, refuses it, naming the repository and
+what the next apply does.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 from reconciler.documents import parse_catalog
-from reconciler.errors import CatalogError, GitError, RefNotFoundError
+from reconciler.errors import CatalogError, GitError, RefNotFoundError, StoreDamagedError
 from reconciler.layout import Layout
 from reconciler.planning.model import (
     UNKNOWN,
@@ -61,19 +66,27 @@ class Fetch(Enum):
     OFFLINE = "offline"
 
 
+Notice = Callable[[str], None]
+"""Where resolving tells the user what it did beyond resolving (a damaged copy fetched anew)."""
+
+
 def resolve(
     desired: DesiredState, *, base_dir: Path, store: GitStore, fetch: Fetch,
-    default_user: str | None = None, root: Path = Path("/"),
+    default_user: str | None = None, root: Path = Path("/"), notice: Notice = lambda _: None,
 ) -> Targets:
     """Desired state → Targets; raises before any change if a ref does not exist.
     `default_user` runs a scriptless app that names no `user:` (the libpanda user) and
     owns the ROS workspace; `root` is lpam's --root, under which the workspace lies."""
     specs = desired.repositories
-    repos = _parallel(lambda s: _resolve_repo(s, base_dir, store, fetch, desired), specs,
-                      fetch)
+    repos = _parallel(lambda s: _resolve_repo(s, base_dir, store, fetch, desired, notice),
+                      specs, fetch)
     workspace = workspace_target(desired, root, default_user)
-    app = (_resolve_app(desired, repos, store, default_user, fetch, workspace)
-           if desired.app is not None else None)
+    app = None
+    if desired.app is not None:
+        bare: set[str] = set()  # repositories with no catalog, as reading them found
+        app = _resolve_app(desired, repos, store, default_user, fetch, workspace, notice,
+                           bare)
+        repos = [replace(r, no_catalog=True) if r.key in bare else r for r in repos]
     return Targets(repositories=tuple(repos), app=app)
 
 
@@ -106,15 +119,31 @@ def _bring(store: GitStore, key: str, url: str, fetch: Fetch) -> None:
 
 def _resolve_repo(
     spec: RepositorySpec, base_dir: Path, store: GitStore, fetch: Fetch, desired: DesiredState,
+    notice: Notice,
 ) -> RepoTarget:
     return _resolve_ref(spec.key, desired.mirrored(spec.source(base_dir)), spec.ref, store,
-                        fetch)
+                        fetch, notice)
+
+
+def sound_copy(store: GitStore, key: str, url: str, *, renew: bool, notice: Notice) -> None:
+    """Make sure the key's copy in the store is sound before anything reads it: a damaged
+    copy is fetched anew from `url` when `renew` (apply), else refused (a plan changes
+    nothing); see execution/cache.py."""
+    from reconciler.execution import cache
+
+    found = store.damage(key)
+    if found is None:
+        return
+    if not renew:
+        raise cache.refused(key, url, found, store.location(key))
+    notice(cache.renew(store, key, url, found))
 
 
 def _resolve_ref(key: str, url: str, ref: str | None, store: GitStore,
-                 fetch: Fetch) -> RepoTarget:
+                 fetch: Fetch, notice: Notice) -> RepoTarget:
     """The commit `ref` names in the repository at `url` (stored as `key`): a hash stays,
     a branch or tag follows its tip, none follows the default branch."""
+    sound_copy(store, key, url, renew=fetch is Fetch.CHECKOUT, notice=notice)
     commit: str | None = None
     if ref is not None and is_hex_commit(ref):
         # A commit hash names the same content whichever remote brought it.
@@ -155,22 +184,25 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: GitStore,
     return RepoTarget(key=key, url=url, ref=ref, commit=commit)
 
 
+NO_CATALOG = Catalog()  # what a commit without libpanda-apps.yaml offers: nothing
+
+
 def _catalog(store: GitStore, repo: RepoTarget) -> Catalog | None:
-    """The repository's app catalog at its target commit; None when not fetched yet.
-    A commit's content is the same whichever remote brought it, so the origin of the
-    checkout does not matter here."""
+    """The repository's app catalog at its target commit; None when not fetched yet,
+    NO_CATALOG when the commit has no libpanda-apps.yaml. A commit's content is the same
+    whichever remote brought it, so the origin of the checkout does not matter here."""
     if repo.commit is None or not store.has_commit(repo.key, repo.commit):
         return None
     data = store.read_file(repo.key, repo.commit, CATALOG_FILE)
     if data is None:
-        return Catalog()
+        return NO_CATALOG
     label = Path(f"{repo.key}@{short(repo.commit)}/{CATALOG_FILE}")
     return parse_catalog(label, data.decode("utf-8", "replace"))
 
 
 def _resolve_app(
     desired: DesiredState, repos: list[RepoTarget], store: GitStore, default_user: str | None,
-    fetch: Fetch, workspace: WorkspaceTarget,
+    fetch: Fetch, workspace: WorkspaceTarget, notice: Notice, bare_keys: set[str],
 ) -> AppTarget:
     spec = desired.app
     assert spec is not None
@@ -187,11 +219,15 @@ def _resolve_app(
     found: list[tuple[RepoTarget, CatalogApp]] = []
     unknown: list[RepoTarget] = []
     offered: list[str] = []
+    bare: list[str] = []
     for repo in candidates:
         catalog = _catalog(store, repo)
         if catalog is None:
             unknown.append(repo)
             continue
+        if catalog is NO_CATALOG:
+            bare.append(f"{repo.key}@{short(repo.commit)}")
+            bare_keys.add(repo.key)
         app = catalog.app(spec.name)
         offered += [f"{a.name} ({repo.key})" for a in catalog.apps]
         if app is not None:
@@ -213,15 +249,18 @@ def _resolve_app(
                 hint="fix the repository's libpanda-apps.yaml or pin another commit",
             )
         target = _app_target(spec, repo, entry, tree, store, default_user)
-        return replace(target, deps=_deps(desired, entry, store, fetch, workspace))
+        return replace(target, deps=_deps(desired, entry, store, fetch, workspace, notice))
     if unknown:
         repo = unknown[0] if len(unknown) == 1 else RepoTarget(UNKNOWN, "", None, None)
         return AppTarget(name=spec.name, repository=repo.key, commit=repo.commit, path=None,
                          tree=None, params=dict(spec.params))
+    missing = f"; {', '.join(bare)} {'has' if len(bare) == 1 else 'have'} no " \
+        f"{CATALOG_FILE} (an app repository lists its apps there)" if bare else ""
     raise CatalogError(
         f"app {spec.name} is not in the catalog of any desired repository "
-        f"(available: {', '.join(offered) or 'none'})",
-        hint="check the app name, or add the repository that offers it",
+        f"(available: {', '.join(offered) or 'none'}){missing}",
+        hint="check the app name, or add the repository that offers it" if not bare else
+        f"add {CATALOG_FILE} to that repository, or add the repository that offers the app",
     )
 
 
@@ -267,14 +306,17 @@ def _app_target(
 
 
 def _deps(desired: DesiredState, entry: CatalogApp, store: GitStore, fetch: Fetch,
-          workspace: WorkspaceTarget) -> Deps:
+          workspace: WorkspaceTarget, notice: Notice) -> Deps:
     """The app's apt packages, pip requirements and ROS repositories, the latter resolved
     to commits by the same rules as app repositories (through the desired mirrors)."""
 
     def ros(source: RosRepository) -> RosSource:
         key = f"{ROS_KEY_PREFIX}{source.owner}/{source.repo}"
         try:
-            found = _resolve_ref(key, desired.mirrored(source.source), source.ref, store, fetch)
+            found = _resolve_ref(key, desired.mirrored(source.source), source.ref, store, fetch,
+                                 notice)
+        except StoreDamagedError:  # names the ROS repository's key (@ros/owner/repo) itself
+            raise
         except GitError as exc:
             raise type(exc)(f"app {entry.name}: ROS repository {source.owner}/{source.repo}: "
                             f"{exc.message}", hint=exc.hint) from None

@@ -18,6 +18,7 @@ from reconciler.planning.model import (
     short,
 )
 from reconciler.unit import UnitState
+from schemas.catalog import CATALOG_FILE
 from schemas.names import is_hex_commit
 from schemas.plan import Action, Change
 from schemas.record import AppRecord, RepositoryRecord, StateRecord
@@ -39,9 +40,25 @@ def diff(targets: Targets, observed: Observed) -> list[Change]:
         if rec.key not in wanted
     ]
     changes += dependencies.changes(targets.app, observed.deps)
+    if observed.adopt is not None and targets.app is not None:
+        strays = strays_refreshed(observed.record, observed.stray_live)
+        others = [s for s in strays.strays if s.name != observed.adopt]
+        changes += _strays(strays.model_copy(update={"strays": others}))
+        changes.append(_adoption(targets.app, observed.adopt))
+        return changes
     changes += _strays(strays_refreshed(observed.record, observed.stray_live))
     changes.append(_app(targets.app, observed.record.app, observed.generations, observed.live))
     return changes
+
+
+def _adoption(t: AppTarget, stray: str) -> Change:
+    """The app LPAM installed is the desired one as it is: taken over in place."""
+    return Change(
+        address="app", action=Action.CREATE,
+        after=_app_fields(t.name, t.repository, t.commit, t.params, None),
+        reason=f"{t.name}, installed by LPAM as {stray}, is the desired app as it is (same "
+        f"files as {t.repository} at {short(t.commit)}): adopted in place — no script runs "
+        "and it is not restarted")
 
 
 def _repo_fields(rec: RepositoryRecord) -> dict[str, str | bool | dict[str, str] | None]:
@@ -63,14 +80,27 @@ def _describe_ref(ref: str | None) -> str:
 
 
 def _repository(t: RepoTarget, observed: Observed) -> Change:
+    ref = _describe_ref(t.ref)
+    if t.as_of_last_fetch:
+        ref += " (offline: as of the last fetch)"
+    if t.no_catalog:
+        return _no_catalog(_repository_change(t, observed, ref))
+    return _repository_change(t, observed, ref)
+
+
+def _no_catalog(change: Change) -> Change:
+    """A repository whose commit has no libpanda-apps.yaml offers no app: said, not hidden."""
+    warning = (f"{change.address.removeprefix('repository.')} has no {CATALOG_FILE} at "
+               f"{short(str((change.after or {}).get('commit')))}: it offers no apps")
+    return change.model_copy(update={"warnings": [*change.warnings, warning]})
+
+
+def _repository_change(t: RepoTarget, observed: Observed, ref: str) -> Change:
     rec = observed.record.repository(t.key)
     obs = observed.repositories.get(t.key)
     after: dict[str, str | bool | dict[str, str] | None] = {
         "url": t.url, "ref": t.ref, "commit": t.commit,
     }
-    ref = _describe_ref(t.ref)
-    if t.as_of_last_fetch:
-        ref += " (offline: as of the last fetch)"
     blocked = "the update will be refused until they are committed elsewhere or removed"
     if rec is None:
         return Change(

@@ -43,8 +43,7 @@ def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> li
             steps.append(step(StepKind.REMOVE, Phase.CLEANUP, key, key=key))
     steps += dependencies.steps(targets.app, observed.deps)
     steps += app_steps(refreshed(observed.record, observed.live, observed.stray_live),
-                       targets.app,
-                       observed.generations)
+                       targets.app, observed.generations, adopt=observed.adopt)
     return order(steps)
 
 

@@ -72,11 +72,14 @@ def _settings(app: AppRecord | AppTarget) -> tuple[dict[str, str], str | None]:
 
 def app_steps(
     record: StateRecord, new: AppTarget | None, generations: frozenset[GenerationKey], *,
-    start: bool = True, verify: bool = True,
+    start: bool = True, verify: bool = True, adopt: str | None = None,
 ) -> list[Step]:
     """The steps that take the record's app (and strays) to `new`, started if `start`
     (and its health checked if `verify`). An app an operator stopped (`held`) stays
-    stopped while it is the one wanted."""
+    stopped while it is the one wanted. `adopt`: the app LPAM installed that is `new`
+    as it is (observe/adoption.py) — recorded as lpam's, not reinstalled or restarted."""
+    if adopt is not None and new is not None and record.app is None:
+        return _adopted(record, new, adopt, generations, start=start, verify=verify)
     old = record.app
     steps = _stray_steps(record)
     if new is not None and old is not None and same_generation(old, new, generations):
@@ -98,6 +101,26 @@ def app_steps(
         steps.append(step(StepKind.INSTALL, Phase.CUTOVER, target, **_wanted(new, gen)))
         if start:
             steps += _started(new, gen, target, verify=verify)
+    return steps
+
+
+def _adopted(record: StateRecord, new: AppTarget, adopt: str,
+             generations: frozenset[GenerationKey], *, start: bool,
+             verify: bool) -> list[Step]:
+    """Take over LPAM's app in place: its generation staged from git (same content as
+    LPAM's folder), then recorded as installed — running if its unit runs — with no script;
+    started only if it was not running. Other strays are stopped and uninstalled first."""
+    stray = next(s for s in record.strays if s.name == adopt)
+    others = record.model_copy(update={"strays": [s for s in record.strays if s is not stray]})
+    steps = _stray_steps(others)
+    gen = new.generation or UNKNOWN
+    target = f"{new.name}@{gen}"
+    if GenerationKey.of(new.name, gen) not in generations:
+        steps.insert(0, step(StepKind.STAGE, Phase.PREPARE, target, **_wanted(new, gen)))
+    steps.append(step(StepKind.ADOPT, Phase.CUTOVER, target, **_wanted(new, gen, good=True),
+                      folder=stray.folder, running="no" if stray.stopped else "yes"))
+    if stray.stopped and start:
+        steps += _started(new, gen, target, verify=verify)
     return steps
 
 

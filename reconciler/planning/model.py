@@ -45,6 +45,7 @@ class RepoTarget:
     ref: str | None
     commit: str | None
     as_of_last_fetch: bool = False
+    no_catalog: bool = False  # an app repository whose commit has no libpanda-apps.yaml
 
 
 @dataclass(frozen=True)
@@ -200,6 +201,7 @@ class Observed:
     live: UnitState | None = None  # the installed app's unit, as its service manager says
     stray_live: dict[str, UnitState] = field(default_factory=dict)  # LPAM's app's unit
     deps: DepsObserved | None = None  # the desired app's dependencies on this machine
+    adopt: str | None = None  # the app LPAM installed that is the desired one as it is
 
 
 @dataclass(frozen=True)

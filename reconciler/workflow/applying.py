@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from reconciler.execution.ports import Gate, Listener
     from schemas.desired import DesiredState
     from schemas.plan import Plan
+    from schemas.record import DesiredRef
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,7 @@ class ApplyOptions:
     keep_generations: int = 3  # good generations kept on disk for `lpam rollback`
     release: bool = False  # end a rollback's hold first
     wait: float = 0.0  # seconds the cutover may wait for closed gates to open
+    resume: str = "lpam apply"  # the command that resumes it, as the user would type it
 
 
 @dataclass(frozen=True)
@@ -46,7 +48,8 @@ class Applied:
 
 
 def apply(machine: Machine, path: Path, desired: DesiredState, *, options: ApplyOptions,
-          confirm: Callable[[Plan], bool], report: Report, local: bool = False) -> Applied:
+          confirm: Callable[[Plan], bool], report: Report, local: bool = False,
+          base_dir: Path | None = None) -> Applied:
     """`lpam apply [-f FILE]`: the plan is reported (`Planned`) and `confirm`ed before it
     runs; nothing changes when it is declined. `local`: use no network, resolving refs as
     the last fetch (or an unpacked bundle) left them; refused if anything is not local."""
@@ -69,10 +72,19 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
             return Applied(0, _standing(machine))
         if not confirm(made):
             return Applied(0, _standing(machine), cancelled=True)
-        base = path.resolve().parent
+        base = base_dir if base_dir is not None else path.resolve().parent
         return execute_plan(machine, store, made, lock, options=options, report=report,
                             gate=machine.gate_for(desired, base),
-                            listener=machine.listener_for(desired, base))
+                            listener=machine.listener_for(desired, base),
+                            desired=desired_ref(desired, path))
+
+
+def desired_ref(desired: DesiredState, path: Path) -> DesiredRef:
+    """What an apply records it works toward: holds are held against its content."""
+    from reconciler.workflow.operate import desired_fingerprint
+    from schemas.record import DesiredRef
+
+    return DesiredRef(fingerprint=desired_fingerprint(desired), source=str(path))
 
 
 def finishes_rollback(made: Plan) -> bool:
@@ -99,12 +111,13 @@ def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOpt
 
 def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
                  options: ApplyOptions, report: Report, gate: Gate | None,
-                 listener: Listener | None) -> Applied:
+                 listener: Listener | None, desired: DesiredRef | None = None) -> Applied:
     from reconciler.execution.executor import execute
 
     ctx, log = machine.context(store, lock, command="apply",
                                script_timeout=options.script_timeout, report=report,
-                               gate=gate, gate_wait=options.wait, listener=listener)
+                               gate=gate, gate_wait=options.wait, listener=listener,
+                               resume=options.resume, desired=desired)
     execute(made, ctx, progress=lambda text: report(Progress(text)),
             keep=options.keep_generations)
     return Applied(len(made.steps), _standing(machine, ctx.record.app), log)
@@ -130,6 +143,12 @@ def _release(machine: Machine, report: Report) -> None:
     from reconciler.state import read_record, write_record
 
     record = read_record(machine.layout)
-    if record.hold is not None:
-        write_record(machine.layout, record.model_copy(update={"hold": None}))
-        report(Progress(f"Released the hold on generation {record.hold.generation}."))
+    hold = record.hold
+    if hold is not None:
+        record = write_record(machine.layout, record.model_copy(update={"hold": None}))
+        report(Progress(f"Released the hold on generation {hold.generation}."))
+    app = record.app
+    if app is not None and app.held:
+        write_record(machine.layout, record.model_copy(
+            update={"app": app.model_copy(update={"held": False})}))
+        report(Progress(f"Released the operator's stop of {app.name}."))

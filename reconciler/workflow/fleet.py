@@ -1,10 +1,12 @@
 """`lpam fleet status`: the whole fleet from git alone.
 
-Each car's passes push its status to the branch `status/<vehicle>` of the desired-state
-repository (workflow/sync.py `publish`). In any clone of that repository, after a fetch,
-this reads those branches and says per vehicle which revision it applied against the
-branch the cars follow, its app, whether it runs, how its last pass ended, and when it was
-last seen — no server, no database, nothing but refs and one small file per car.
+Each car publishes its status to the branch `status/<vehicle>` of the desired-state
+repository when it changed and at least every heartbeat (workflow/sync.py `publish`,
+reconciler/publication.py). In any clone of that repository, after a fetch, this reads
+those branches and says per vehicle which file of the repository it follows, which
+revision it applied against the branch the cars follow, its app, whether it runs, how its
+last pass ended, and how old its last report is — no server, no database, nothing but refs
+and one small file per car. The age is measured against the clock the caller passes in.
 """
 
 from __future__ import annotations
@@ -23,13 +25,14 @@ PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
 @dataclass(frozen=True)
 class Vehicle:
     vehicle: str
+    follows: str | None  # vehicles/<id>.yaml or desired-state.yaml (None: not reported)
     applied: str | None
     up_to_date: bool | None  # applied == the followed branch's tip (None: unknown)
     app: str | None
     running: bool | None
     last_pass: str | None
     reason: str | None
-    last_seen: str
+    last_seen: str  # when the car last reported (its status commit's time)
 
 
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
@@ -76,26 +79,45 @@ def _row(vehicle: str, body: dict[str, Any], tip: str | None, when: int) -> Vehi
     last = agent.get("last_attempt") or {}
     applied = agent.get("applied_revision")
     return Vehicle(
-        vehicle=vehicle, applied=applied,
+        vehicle=vehicle, follows=agent.get("follows"), applied=applied,
         up_to_date=None if tip is None or applied is None else applied == tip,
         app=app.get("name"), running=app.get("running"), last_pass=last.get("result"),
         reason=last.get("reason"),
         last_seen=datetime.fromtimestamp(when, UTC).isoformat(timespec="seconds"))
 
 
-def as_json(tip: str | None, rows: list[Vehicle]) -> dict[str, Any]:
-    return {"tip": tip, "vehicles": [asdict(row) for row in rows]}
+def age(row: Vehicle, now: datetime) -> float:
+    """Seconds since the car's last report, by `now` (negative: the car's clock is ahead)."""
+    return (now - datetime.fromisoformat(row.last_seen)).total_seconds()
 
 
-def as_table(tip: str | None, rows: list[Vehicle]) -> str:
+def ago(seconds: float) -> str:
+    """An age as people say it: "45 s ago", "12 min ago", "3 h ago", "4 d ago"."""
+    if seconds < -60:
+        return f"{ago(-seconds).removesuffix(' ago')} ahead (the car's clock)"
+    seconds = max(seconds, 0)
+    for unit, size, below in (("s", 1, 60), ("min", 60, 3600), ("h", 3600, 48 * 3600)):
+        if seconds < below:
+            return f"{int(seconds // size)} {unit} ago"
+    return f"{int(seconds // 86400)} d ago"
+
+
+def as_json(tip: str | None, rows: list[Vehicle], *, now: datetime) -> dict[str, Any]:
+    return {"tip": tip, "vehicles": [{**asdict(row), "age_seconds": int(age(row, now)),
+                                      "age": ago(age(row, now))} for row in rows]}
+
+
+def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
     if not rows:
         return ("No vehicle has published its status yet (no status/* branches: fetch, or "
                 "check that the cars may push to this repository).")
-    header = ("Vehicle", "Applied", "Current", "App", "Running", "Last pass", "Last seen")
-    cells: list[tuple[str, ...]] = [(r.vehicle, (r.applied or "none")[:12],
+    header = ("Vehicle", "Follows", "Applied", "Current", "App", "Running", "Last pass",
+              "Last report")
+    cells: list[tuple[str, ...]] = [(r.vehicle, r.follows or "?", (r.applied or "none")[:12],
               {True: "yes", False: "no", None: "?"}[r.up_to_date], r.app or "-",
               {True: "yes", False: "no", None: "?"}[r.running],
-              (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""), r.last_seen)
+              (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""),
+              ago(age(r, now)))
              for r in rows]
     cells = [tuple("".join(c if c.isprintable() else "?" for c in v)[:60] for v in row)
              for row in cells]
@@ -103,5 +125,8 @@ def as_table(tip: str | None, rows: list[Vehicle]) -> str:
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)).rstrip()]
     lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)).rstrip()
               for row in cells]
-    lines.append(f"\nThe cars follow {(tip or 'an unknown revision')[:12]}.")
+    lines.append(f"\nThe cars follow {(tip or 'an unknown revision')[:12]}. A car reports "
+                 "when its status changes and at least every\nheartbeat (agent.yaml "
+                 "heartbeat_seconds, 6 h unless set): a much older report means it is off "
+                 "or offline.")
     return "\n".join(lines)

@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from reconciler.execution.lock import Lock
     from reconciler.execution.ports import DependencyPorts, Gate, Listener, Services
     from schemas.desired import DesiredState
+    from schemas.record import DesiredRef
 
 
 def now() -> datetime:
@@ -129,7 +130,8 @@ class Machine:
 
     def context(self, store: GitStore, lock: Lock, *, command: str, script_timeout: float,
                 report: Report, gate: Gate | None = None, gate_wait: float = 0.0,
-                listener: Listener | None = None) -> tuple[Context, Path]:
+                listener: Listener | None = None, resume: str | None = None,
+                desired: DesiredRef | None = None) -> tuple[Context, Path]:
         """What the steps of one run may touch, and the log of its scripts and commands."""
         from reconciler.adapters.scripts import ScriptRunner
         from reconciler.execution.context import Context
@@ -144,6 +146,7 @@ class Machine:
                                  timeout=script_timeout, lock_fd=lock.fd, note=lock.note),
             deps=self.deps, log=CommandLog(log, report), stop_requested=self.stop_requested,
             gate=gate, gate_wait=gate_wait, listener=listener,
+            command=resume or f"lpam {command}", desired=desired,
         )
         return ctx, log
 

@@ -97,9 +97,12 @@ def previous_good(ctx: Context) -> HistoryEntry:
 def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,
              progress: Progress) -> str:
     """Make `entry` current again through journalled steps, and hold it there. The hold is
-    written first: if lpam dies mid-rollback, the next plan finishes it (cli._prepare)."""
-    hold = Hold(desired=desired_fingerprint(desired), generation=entry.generation,
-                target=entry)
+    written first: if lpam dies mid-rollback, the next plan finishes it (cli._prepare).
+    It holds against the desired state last applied, whichever file or revision that came
+    from (`desired`, the default file's, counts only when no apply recorded one)."""
+    applied = ctx.record.desired
+    hold = Hold(desired=applied.fingerprint if applied is not None
+                else desired_fingerprint(desired), generation=entry.generation, target=entry)
     with gates_passed(ctx, progress):
         ctx.save(ctx.record.model_copy(update={"hold": hold}))
         steps = app_steps(ctx.record, target_of(entry.installed()),

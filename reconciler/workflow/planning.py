@@ -20,6 +20,7 @@ from reconciler.workflow.machine import Machine
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
     from reconciler.observe.targets import Fetch
+    from reconciler.planning.model import Observed
     from schemas.desired import DesiredState
     from schemas.plan import Plan
     from schemas.record import StateRecord
@@ -73,12 +74,14 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     if hold is not None:  # a rollback holds: nothing to resolve, no network needed
         return store, _held_plan(machine, store, record, hold, report)
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
-                      default_user=libpanda_user(layout), root=layout.root)
+                      default_user=libpanda_user(layout), root=layout.root,
+                      notice=lambda text: report(Note(text)))
     report(Phase("resolve"))
     needs = targets.app is not None and bool(targets.app.deps.how)  # apt, pip or ROS
     observed = observe(layout, store, targets,
                        machine.services if asks_manager(record) else None,
                        machine.deps if needs else None)
+    observed = _stop_released(observed, desired, report)
     report(Phase("observe"))
     if busy is not None:
         report(Note(f"an apply is in progress ({busy}); this plan shows the machine as it "
@@ -89,6 +92,25 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     if busy is None and observed.interrupted:
         report(Note(interrupted_note(observed.interrupted, made)))
     return store, made
+
+
+def _stop_released(observed: Observed, desired: DesiredState, report: Report) -> Observed:
+    """An operator's stop holds against the desired state last applied: once that desired
+    state changed (a new file, a new revision), the stop is over and the app is planned
+    as any stopped app — started. (`lpam apply --release` ends it too.)"""
+    from dataclasses import replace
+
+    from reconciler.workflow.operate import desired_fingerprint
+
+    record = observed.record
+    app, applied = record.app, record.desired
+    if app is None or not app.held or applied is None or \
+            applied.fingerprint == desired_fingerprint(desired):
+        return observed
+    report(Note(f"the operator's stop of {app.name} ends: the desired state changed since "
+                f"it was last applied (from {applied.source})"))
+    released = record.model_copy(update={"app": app.model_copy(update={"held": False})})
+    return replace(observed, record=released)
 
 
 def interrupted_note(interrupted: tuple[str, ...], made: Plan) -> str:

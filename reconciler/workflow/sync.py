@@ -10,7 +10,10 @@ phase fails on its own, and never at the running app's expense:
   new one arrives — a broken commit must not restart the car's app every five minutes;
 - `fetch_only`: fetch the source and the commits it pins, record, change nothing (the
   pass at shutdown, so that what WiFi brought at the end of a trip applies at the next
-  start).
+  start);
+- a damaged copy in the repository store (the source's or an app repository's) is fetched
+  anew, as apply does; with no network to do so the pass is "offline", not failed: the
+  revision is not at fault, and the next pass with network tries it again.
 
 Relative `url:` paths in the desired state resolve against the source repository's own
 URL, as git resolves a submodule's (`../apps.git` beside the fleet repository, on the
@@ -32,13 +35,24 @@ from reconciler.errors import (
     GitError,
     HealthError,
     LpamError,
+    PushRefusedError,
     StopRequested,
+    StoreDamagedError,
     TrustError,
 )
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.machine import Machine
-from schemas.agent import PASSES_KEPT, AgentConfig, AgentStatus, Attempt, Result, check_vehicle
+from schemas.agent import (
+    PASSES_KEPT,
+    AgentConfig,
+    AgentStatus,
+    Attempt,
+    Publication,
+    Published,
+    Result,
+    check_vehicle,
+)
 
 if TYPE_CHECKING:
     from schemas.desired import DesiredState
@@ -93,7 +107,11 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
         unpack(machine, bundle, config.source.url, config.source.branch)
         offline: str | None = f"from the bundle {bundle}"
     else:
-        offline = _fetch(machine, config, report)
+        try:
+            offline = _fetch(machine, config, report)
+        except StoreDamagedError as exc:
+            report(Note(f"offline: {exc.message}"))
+            return _record(machine, status, Synced("offline", None, exc.message, exc.hint))
         if offline is None:
             online.append(True)
     revision = _tip(machine, config)
@@ -101,6 +119,7 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     if revision is None:
         why = offline or f"the source has no branch {config.source.branch!r}"
         return _record(machine, status, Synced("offline" if offline else "failed", None, why))
+    status = status.model_copy(update={"follows": followed(machine, vehicle, revision)})
     if fetch_only:
         return _record(machine, status, _fetch_pins(machine, config, vehicle, revision, report))
     if offline and bundle is None and revision == status.applied_revision:
@@ -116,14 +135,18 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
         return _record(machine, status, Synced("nothing to do", revision,
                                                "this revision failed before"))
     try:
-        label, desired = _desired(machine, config, vehicle, revision)
-        done = apply(machine, label, desired, options=options, confirm=lambda plan: True,
-                     report=report, local=offline is not None)
+        chosen = _desired(machine, config, vehicle, revision,
+                          keep=frozenset(filter(None, [status.applied_revision])))
+        done = apply(machine, chosen.label, chosen.desired, options=options,
+                     confirm=lambda plan: True, report=report, local=offline is not None,
+                     base_dir=chosen.base_dir)
     except StopRequested as exc:  # not a failure: the next pass tries the revision again
         return _record(machine, status, Synced("stopped", revision, exc.message))
     except Deferred as exc:  # prepared, not cut over: the next pass tries again
         report(Note(exc.message))
         return _record(machine, status, Synced("deferred", revision, exc.message))
+    except StoreDamagedError as exc:  # and no network to fetch it anew
+        return _record(machine, status, Synced("offline", revision, exc.message, exc.hint))
     except LpamError as exc:
         failed: Result = "rolled back" if isinstance(exc, HealthError) else "failed"
         return _record(machine, status, Synced(failed, revision, _reason(exc), exc.hint))
@@ -153,25 +176,74 @@ STATUS_FILE = "status.json"
 
 
 def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
-    """Push this vehicle's status to `status/<vehicle>` of the source, so that `lpam fleet
-    status` in any clone shows the whole fleet from git alone. A source that refuses pushes
-    (a read-only mirror, a GitHub token without write access) costs a note, nothing more."""
+    """Push this vehicle's status to `status/<vehicle>` of the source when it is due
+    (reconciler/publication.py: changed, or the heartbeat), so that `lpam fleet status` in
+    any clone shows the whole fleet from git alone; an unchanged status costs no connection
+    and no commit. The branch holds at most `HISTORY` commits. A source that refuses pushes
+    (a read-only mirror, a token without write access) costs a note, nothing more: the car
+    keeps working and its status stays local."""
     from reconciler import status as machine_status
+    from reconciler.atomic import write_atomic
+    from reconciler.publication import APP_FIELDS, due, fingerprint
 
     own = read_status(machine)
     if own.vehicle is None:
         return
     app = machine_status.as_json(machine.layout, state=machine.services.state)["app"]
-    body = {"agent": own.model_dump(mode="json"),
-            "app": None if app is None else {k: app[k] for k in
-                                             ("name", "generation", "status", "running")}}
+    shown = None if app is None else {k: app[k] for k in APP_FIELDS}
+    now = machine.clock()
+    mark = fingerprint(own, shown)
+    why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
+    if why is None:
+        return
+    body = {"agent": own.model_dump(mode="json"), "app": shown}
     text = json.dumps(body, indent=2, sort_keys=True) + "\n"
+    branch = STATUS_PREFIX + own.vehicle
+    result: Published = "pushed"
+    reason = None
     try:
-        machine.store().push_file(SOURCE_KEY, config.source.url, STATUS_PREFIX + own.vehicle,
-                                  STATUS_FILE, text.encode("utf-8"),
-                                  f"status of {own.vehicle}")
+        _push(machine, config, branch, text.encode("utf-8"), when=int(now.timestamp()),
+              report=report)
+        report(Progress(f"status published to {branch} ({why})"))
+    except PushRefusedError as exc:
+        result, reason = "refused", exc.message
+        report(Note(f"status not published: the fleet repository is read-only for this car "
+                    f"— {exc.message}. The car keeps working; its status stays local "
+                    "(`lpam status`) and is offered again when it changes or in "
+                    f"{config.heartbeat_seconds / 3600:g} h"))
     except LpamError as exc:
-        report(Note(f"status not published: {exc.message}"))
+        result, reason = "failed", exc.message
+        report(Note(f"status not published: {exc.message}. The car keeps working; its "
+                    "status stays local (`lpam status`) and is offered again next pass"))
+    done = Publication(time=now.isoformat(timespec="seconds"), fingerprint=mark,
+                       result=result, reason=reason)
+    write_atomic(machine.layout.agent_status,
+                 own.model_copy(update={"publication": done}).model_dump_json(indent=2) + "\n")
+
+
+def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *, when: int,
+          report: Report) -> None:
+    """One status commit on `branch`, on top of its tip while it holds fewer than `HISTORY`
+    commits, else starting it afresh. A server that refuses to rewrite the branch (git's
+    receive.denyNonFastForwards, a protected branch) gets it on top after all: a status
+    published with a growing history is better than none."""
+    from reconciler.publication import HISTORY, keeps_parent
+
+    store = machine.store()
+    length = store.history_length(SOURCE_KEY, branch, limit=HISTORY)
+    keep = keeps_parent(length)
+    vehicle = branch.removeprefix(STATUS_PREFIX)
+    try:
+        store.push_file(SOURCE_KEY, config.source.url, branch, STATUS_FILE, content,
+                        f"status of {vehicle}", when=when, parent=keep)
+    except PushRefusedError:
+        if keep or length == 0:
+            raise
+        store.push_file(SOURCE_KEY, config.source.url, branch, STATUS_FILE, content,
+                        f"status of {vehicle}", when=when, parent=True)
+        report(Note(f"the fleet repository does not let this car rewrite {branch}, so its "
+                    f"history grows past {HISTORY} commits: allow non-fast-forward pushes "
+                    "to status/* (see the README's fleet section)"))
 
 
 def vehicle_id(machine: Machine, config: AgentConfig) -> str:
@@ -200,12 +272,17 @@ def vehicle_id(machine: Machine, config: AgentConfig) -> str:
 def _fetch(machine: Machine, config: AgentConfig, report: Report) -> str | None:
     """Fetch the source under the lock (a fetch is a write); the reason when offline."""
     from reconciler.execution.lock import apply_lock
+    from reconciler.observe.targets import sound_copy
 
     try:
         with apply_lock(machine.layout, timeout=60.0):
+            store = machine.store()
+            sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
+                       notice=lambda text: report(Note(text)))
             # the other cars' status branches are not this car's business
-            machine.store().fetch(SOURCE_KEY, config.source.url,
-                                  skip="refs/heads/" + STATUS_PREFIX)
+            store.fetch(SOURCE_KEY, config.source.url, skip="refs/heads/" + STATUS_PREFIX)
+    except StoreDamagedError:
+        raise  # its copy cannot be read: `_pass` records the pass as offline
     except GitError as exc:
         report(Note(f"offline: {exc.message}"))
         return exc.message
@@ -221,19 +298,76 @@ def _tip(machine: Machine, config: AgentConfig) -> str | None:
     return None if refs is None else refs.resolve(config.source.branch)
 
 
+@dataclass(frozen=True)
+class Followed:
+    """A desired state read from the source at a revision: its label (the file as
+    `fleet.git@c92f32f2ab56/desired-state.yaml`, in errors and the record), and where its
+    relative files (`dbc:`, `log:`) are on this machine."""
+
+    label: Path
+    desired: DesiredState
+    base_dir: Path
+
+
+def followed(machine: Machine, vehicle: str, revision: str) -> str | None:
+    """The file of the source at `revision` that is this vehicle's desired state: its own
+    `vehicles/<id>.yaml`, else the fleet's `desired-state.yaml`; None with neither. Read
+    from trees alone (no file is read), so it is known even when the file has a fault."""
+    store = machine.store()
+    if f"{vehicle}.yaml" in store.folder_files(SOURCE_KEY, revision, VEHICLE_DIR):
+        return f"{VEHICLE_DIR}/{vehicle}.yaml"
+    return DEFAULT_FILE if DEFAULT_FILE in store.folder_files(SOURCE_KEY, revision, "") \
+        else None
+
+
 def _desired(machine: Machine, config: AgentConfig, vehicle: str,
-             revision: str) -> tuple[Path, DesiredState]:
-    """This vehicle's desired state at `revision`, relative URLs made absolute."""
-    for name in (f"{VEHICLE_DIR}/{vehicle}.yaml", DEFAULT_FILE):
-        found = desired_at(machine, config.source.url, revision, name)
-        if found is not None:
-            return found
+             revision: str, *, keep: frozenset[str] | None = None) -> Followed:
+    """This vehicle's desired state at `revision`, relative URLs made absolute and the
+    files it names relative to itself copied out of the source (the copies of revisions
+    other than those in `keep` removed; None keeps all)."""
+    name = followed(machine, vehicle, revision)
+    found = None if name is None else desired_at(machine, config.source.url, revision, name)
+    if found is not None:
+        assert name is not None
+        label, desired = found
+        return Followed(label, desired, _files_of(machine, revision, name, desired, keep=keep))
     raise ConfigError(f"neither {VEHICLE_DIR}/{vehicle}.yaml nor {DEFAULT_FILE} is in the "
                       f"source at {revision[:12]}", path=machine.layout.agent_config,
                       hint=f"commit a desired state for this vehicle ({vehicle}) or for all")
 
 
-def applied_desired(machine: Machine) -> tuple[Path, DesiredState] | None:
+def _files_of(machine: Machine, revision: str, name: str, desired: DesiredState, *,
+              keep: frozenset[str] | None) -> Path:
+    """The folder that stands for `name`'s folder in the source at `revision`: the files
+    the desired state names relative to itself (`vehicle.speed.dbc`, `vehicle.source.log`)
+    are copied there once, as they were committed."""
+    import shutil
+
+    from reconciler.atomic import write_atomic
+
+    root = machine.layout.agent_files
+    folder = posixpath.dirname(name)
+    vehicle = desired.vehicle
+    for relative in (vehicle.speed.dbc, vehicle.source.log):
+        if relative is None or relative.startswith("/"):
+            continue
+        path = posixpath.normpath(posixpath.join(folder, relative))
+        if path.startswith("../"):
+            raise ConfigError(f"{relative} lies outside the desired-state repository",
+                              path=name, hint="name a file inside the repository")
+        copy = root / revision / path
+        data = None if copy.is_file() else machine.store().read_file(SOURCE_KEY, revision,
+                                                                      path)
+        if data is not None:
+            write_atomic(copy, data)
+    if keep is not None and root.is_dir():
+        for old in root.iterdir():
+            if old.name not in keep | {revision}:
+                shutil.rmtree(old, ignore_errors=True)
+    return root / revision / folder
+
+
+def applied_desired(machine: Machine) -> Followed | None:
     """The desired state the agent last applied (from the store, no network), for what
     must obey it between passes — an operator's stop obeys its update gates; None on a
     car with no agent or before its first applied pass."""
@@ -289,8 +423,8 @@ def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: s
     from reconciler.workflow.planning import plan
 
     try:
-        label, desired = _desired(machine, config, vehicle, revision)
-        plan(machine, label, desired, report=report)
+        chosen = _desired(machine, config, vehicle, revision)
+        plan(machine, chosen.label, chosen.desired, report=report)
     except LpamError as exc:
         return Synced("fetched", revision, f"the source was fetched; its pins not: "
                       f"{exc.message}")

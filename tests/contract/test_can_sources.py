@@ -1,5 +1,5 @@
 """One contract for every frame source a gate reads the vehicle from, each fed the same
-stretch of the real drive (the car at about 57 km/h, 330 s into it):
+stretch of the generated drive (tests/drive.py; the car at about 57.7 km/h, 330 s into it):
 
 - bus: python-can's socketcand client against `tests.socketcand` replaying it live;
 - follow: a libpanda CSV behind a `currentCan.csv` symlink, written as the drive goes on;
@@ -42,7 +42,7 @@ from tests.canlog import (
     between,
     candump_line,
     csv_row,
-    recording,
+    drive,
     shifted,
     speed_kmh,
     write_candump,
@@ -53,7 +53,7 @@ from tests.socketcand import SocketcandServer
 
 KINDS = ["bus", "follow", "log"]
 FILES = ["follow", "log"]
-OFFSET = 330.0   # seconds into the drive: moving at about 57 km/h
+OFFSET = 330.0   # seconds into the drive: moving at about 57.7 km/h
 HISTORY = 4.0    # seconds recorded before a file source is opened
 LATE = 0.35      # how long after its deadline `frames` may still be running
 
@@ -120,17 +120,17 @@ def feed(tmp_path: Path) -> Iterator[Callable[..., Feed]]:
 
         def make(kind: str, *, speed: float = 1.0, block: int | None = None,
                  silent: bool = False) -> Feed:
-            drive = recording()
-            live = between(drive, OFFSET, OFFSET + 30)
+            frames = drive()
+            live = between(frames, OFFSET, OFFSET + 30)
             if kind == "bus":
                 server = stack.enter_context(SocketcandServer(
-                    drive, offset=1e6 if silent else OFFSET, speed=speed))
+                    frames, offset=1e6 if silent else OFFSET, speed=speed))
                 source = open_source(bus=server.config())
                 stack.callback(source.close)
                 return Feed(kind, source, [], live, stop=server.stop,
                             extras={"server": server})
             shift = time.time() - live[0].timestamp  # the live part begins now
-            history = [shifted(m, shift) for m in between(drive, OFFSET - HISTORY, OFFSET)]
+            history = [shifted(m, shift) for m in between(frames, OFFSET - HISTORY, OFFSET)]
             writer: ProgressiveWriter
             if kind == "follow":
                 path = tmp_path / "2021-08-13-18-57-47.csv"
@@ -174,7 +174,7 @@ def test_backlog_is_the_last_seconds_recorded_oldest_first(
         assert [m.timestamp for m in got] == [m.timestamp for m in expected]
         assert all(a.timestamp <= b.timestamp for a, b in itertools.pairwise(got))
     if f.files:
-        assert 0.5 * 60 < len(f.source.backlog(1.0)) < 1.5 * 100  # ~72 frames a second
+        assert 0.5 * 60 < len(f.source.backlog(1.0)) < 1.5 * 100  # 80 frames a second
     assert f.source.skipped == 0
 
 
@@ -219,7 +219,7 @@ def test_frames_go_on_from_the_backlog_with_no_gap_or_repeat_and_stop_at_the_dea
     first, late_first = collect(f.source, 0.8)
     second, late_second = collect(f.source, 0.5)
     assert 0 <= late_first < LATE and 0 <= late_second < LATE
-    assert len(first) > 25 and len(second) > 15  # ~72 frames a second
+    assert len(first) > 25 and len(second) > 15  # 80 frames a second
     if f.files:  # the file holds everything: backlog + frames is the drive, in order
         got = back + first + second
         expected = window(f.history, 1.0) + f.live[:len(first) + len(second)]
@@ -437,7 +437,7 @@ def _cases(tmp: Path, hostile_port: int, server: SocketcandServer) -> dict[str, 
 
 
 def test_every_fault_opening_a_source_is_one_line_that_says_what_to_do(tmp_path: Path) -> None:
-    with HostileServer() as hostile, SocketcandServer(recording()[:10]) as server:
+    with HostileServer() as hostile, SocketcandServer(drive()[:10]) as server:
         for name, (arguments, words, hint) in _cases(tmp_path, hostile.port, server).items():
             began = time.monotonic()
             with pytest.raises(VehicleSourceError) as caught:

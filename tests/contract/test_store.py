@@ -17,7 +17,7 @@ import pytest
 
 from reconciler.adapters.git import GitStore
 from reconciler.adapters.memory import MemoryStore
-from reconciler.errors import GitError, RefNotFoundError
+from reconciler.errors import GitError, RefNotFoundError, StoreDamagedError
 from reconciler.execution.ports import Store
 from reconciler.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
@@ -127,3 +127,94 @@ def test_remove_forgets_the_checkout(world: tuple[Store, Remote, Layout]) -> Non
     assert not store.has_commit(KEY, remote.first)
     assert not layout.repository_dir(KEY).exists()
     store.remove(KEY)  # removing what is gone is not an error
+
+
+def test_folder_blobs_name_each_file_by_its_content(
+    world: tuple[Store, Remote, Layout], tmp_path: Path,
+) -> None:
+    """What a copy of the folder on disk is compared with when an app LPAM installed is
+    adopted: each file's git blob id, whatever its mode."""
+    from reconciler.blobs import blob_id
+
+    store, remote, _ = world
+    store.fetch(KEY, remote.url)
+    assert store.folder_blobs(KEY, remote.first, "alpha") == {
+        "run.sh": blob_id(b"echo one\n")}
+    assert store.folder_blobs(KEY, remote.second, "alpha") == {
+        "run.sh": blob_id(b"echo two\n")}
+    assert store.folder_blobs(KEY, remote.first, "nowhere") is None
+
+
+def damage(store: Store, layout: Layout) -> None:
+    """Damage the checkout as a power cut or a failing SD card does: the real store's packs
+    cut in half, the twin told so."""
+    if isinstance(store, MemoryStore):
+        store.damaged[KEY] = "pack cut in half"
+        return
+    packs = list((layout.repository_dir(KEY) / ".git" / "objects" / "pack").glob("*.pack"))
+    assert packs
+    for pack in packs:
+        pack.chmod(0o644)
+        with pack.open("r+b") as file:
+            file.truncate(pack.stat().st_size // 2)
+
+
+def test_a_damaged_checkout_is_named_and_never_read(
+    world: tuple[Store, Remote, Layout], tmp_path: Path,
+) -> None:
+    store, remote, layout = world
+    store.fetch(KEY, remote.url)
+    store.checkout(KEY, remote.first)
+    assert store.damage(KEY) is None and store.damage("absent") is None
+    damage(store, layout)
+    assert store.damage(KEY)
+    reads: list[Callable[[], object]] = [
+        lambda: store.has_commit(KEY, remote.first),
+        lambda: store.checkout(KEY, remote.second),
+        lambda: store.export_folder(KEY, remote.first, "alpha", tmp_path / "gen"),
+        lambda: store.local_edits(KEY),
+    ]
+    for read in reads:
+        with pytest.raises(StoreDamagedError) as info:
+            read()
+        assert info.value.key == KEY and f"repository {KEY}:" in info.value.message
+    assert not (tmp_path / "gen").exists()
+    assert store.origin_url(KEY) == remote.url  # its config and refs still read
+
+
+def test_renew_fetches_afresh_and_keeps_the_damaged_copy_aside(
+    world: tuple[Store, Remote, Layout], tmp_path: Path,
+) -> None:
+    store, remote, layout = world
+    store.fetch(KEY, remote.url)
+    store.checkout(KEY, remote.first)
+    damage(store, layout)
+    aside = store.renew(KEY, remote.url)
+    assert aside is not None and aside.exists() and aside.parent == layout.repositories
+    assert store.damage(KEY) is None and store.origin_url(KEY) == remote.url
+    assert store.has_commit(KEY, remote.first) and store.has_commit(KEY, remote.second)
+    assert store.head(KEY) is None  # a fresh clone: the next checkout puts HEAD back
+    store.checkout(KEY, remote.first)
+    assert store.export_folder(KEY, remote.first, "alpha", tmp_path / "gen") == \
+        remote.trees[remote.first]
+    assert store.renew("other", remote.url) is None  # nothing there: a plain clone
+
+
+def test_renew_without_the_remote_moves_nothing(world: tuple[Store, Remote, Layout]) -> None:
+    store, remote, layout = world
+    store.fetch(KEY, remote.url)
+    damage(store, layout)
+    with pytest.raises(GitError):
+        store.renew(KEY, remote.url.replace("apps.git", "missing.git"))
+    assert store.damage(KEY) and store.origin_url(KEY) == remote.url
+    assert not list(layout.repositories.glob("*~damaged"))
+
+
+def test_remove_keeps_a_damaged_copy_aside(world: tuple[Store, Remote, Layout]) -> None:
+    store, remote, layout = world
+    store.fetch(KEY, remote.url)
+    store.checkout(KEY, remote.first)
+    damage(store, layout)
+    store.remove(KEY)
+    assert store.origin_url(KEY) is None and not layout.repository_dir(KEY).exists()
+    assert [p.name for p in layout.repositories.glob("*~damaged")] == [f".{KEY}~damaged"]

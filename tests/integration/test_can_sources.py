@@ -3,8 +3,9 @@ process and stopped by pid, an app that puts frames on the bus with python-can's
 socketcand client, logs written by python-can's writers, a recording the lpam user may not
 read, and lpam's own process (what it imports, what it prints).
 
-Speeds are decoded from the real drive (SPEED 0xB4, bytes 5-6 times 0.01 km/h) only to show
-that what arrives is the car's traffic; the gate's decoding is tested elsewhere.
+Speeds are decoded from the generated drive (tests/drive.py; SPEED 0xB4, bytes 5-6 times
+0.01 km/h) only to show that what arrives is the car's traffic; the gate's decoding is
+tested elsewhere.
 """
 
 from __future__ import annotations
@@ -28,12 +29,12 @@ from reconciler.adapters.can.sources import FrameSource, open_source
 from tests.canlog import (
     CsvWriter,
     between,
-    recording,
-    recording_path,
+    drive,
     shifted,
     speed_kmh,
     write_csv,
 )
+from tests.drive import write_log
 from tests.socketcand import SocketcandServer
 
 REPO = Path(__file__).resolve().parents[2]
@@ -54,11 +55,10 @@ def run_python(code: str) -> subprocess.CompletedProcess[str]:
 
 
 @pytest.fixture
-def socketcand_process() -> Iterator[tuple[subprocess.Popen[str], int]]:
-    """`python -m tests.socketcand` replaying the drive from 330 s (moving), its port."""
-    path = recording_path()
-    if path is None:
-        recording()  # skips, saying why
+def socketcand_process(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], int]]:
+    """`python -m tests.socketcand` replaying the drive, written as a gzip-compressed
+    candump log, from 330 s (moving); its port."""
+    path = write_log(tmp_path / "drive.log.gz")
     proc = subprocess.Popen(
         [PY, "-m", "tests.socketcand", str(path), "--offset", "330", "--port", "0"],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -85,8 +85,9 @@ def test_a_socketcand_process_feeds_the_bus_source_until_it_is_stopped(
     try:
         got = collect(source, 1.0)
         assert len(got) > 40
-        drive = [key(m) for m in between(recording(), 330, 360)]
-        assert any(drive[i:i + len(got)] == [key(m) for m in got] for i in range(len(drive)))
+        expected = [key(m) for m in between(drive(), 330, 360)]
+        assert any(expected[i:i + len(got)] == [key(m) for m in got]
+                   for i in range(len(expected)))
         speeds = [s for m in got if (s := speed_kmh(m)) is not None]
         assert speeds and all(50 < s < 60 for s in speeds)
 
@@ -98,7 +99,7 @@ def test_a_socketcand_process_feeds_the_bus_source_until_it_is_stopped(
         assert time.thread_time() - cpu < 0.1  # python-can alone would spin here
         # only frames already in flight when it stopped (how many depends on the machine's
         # load): a piece of the drive, then silence
-        later = [key(m) for m in between(recording(), 330, 400)]
+        later = [key(m) for m in between(drive(), 330, 400)]
         assert any(later[i:i + len(after)] == [key(m) for m in after]
                    for i in range(len(later)))
         assert collect(source, 0.2) == []
@@ -109,7 +110,7 @@ def test_a_socketcand_process_feeds_the_bus_source_until_it_is_stopped(
 def test_frames_an_app_puts_on_the_bus_reach_the_source() -> None:
     """Another process — an app under test — sends with python-can's socketcand client
     (which writes data bytes unpadded: `a` for 0x0a); lpam's source hears it."""
-    with SocketcandServer(recording(), offset=1e6) as server:  # a quiet bus
+    with SocketcandServer(drive(), offset=1e6) as server:  # a quiet bus
         source = open_source(bus=server.config())
         try:
             app = subprocess.Popen([PY, "-c", textwrap.dedent(f"""
@@ -135,15 +136,15 @@ def test_frames_an_app_puts_on_the_bus_reach_the_source() -> None:
 
 def test_the_speed_read_through_a_followed_recording_is_the_cars(tmp_path: Path) -> None:
     """The drive as libpanda's CSV, growing: standing at 100 s, at speed at 330 s."""
-    drive = recording()
+    frames = drive()
     csv, link = tmp_path / "drive.csv", tmp_path / "currentCan.csv"
-    write_csv(csv, between(drive, 0, 100))
+    write_csv(csv, between(frames, 0, 100))
     link.symlink_to(csv)
     source = open_source(follow=link)
     try:
         standing = [speed_kmh(m) for m in source.backlog(5.0) if m.arbitration_id == 0xB4]
         assert standing and set(standing) == {0.0}
-        with CsvWriter(csv, between(drive, 330, 334), shift=0.0, speed=16.0) as writer:
+        with CsvWriter(csv, between(frames, 330, 334), shift=0.0, speed=16.0) as writer:
             assert writer.done.wait(2)
         moving = [s for m in source.backlog(3.0) if (s := speed_kmh(m)) is not None]
         assert moving and all(50 < s < 60 for s in moving)
@@ -154,7 +155,7 @@ def test_the_speed_read_through_a_followed_recording_is_the_cars(tmp_path: Path)
 @pytest.mark.parametrize("suffix", [".asc", ".blf"])
 def test_logs_python_can_reads_whole_are_read_but_not_followed(
         tmp_path: Path, suffix: str) -> None:
-    frames = [shifted(m, 1000.0) for m in between(recording(), 330, 333)]
+    frames = [shifted(m, 1000.0) for m in between(drive(), 330, 333)]
     path = tmp_path / f"drive{suffix}"
     with can.Logger(path) as writer:
         for msg in frames:
@@ -174,7 +175,7 @@ def test_logs_python_can_reads_whole_are_read_but_not_followed(
 
 
 def test_a_libpanda_csv_given_as_a_log_is_followed_as_one(tmp_path: Path) -> None:
-    frames = between(recording(), 330, 332)
+    frames = between(drive(), 330, 332)
     path = tmp_path / "recording.csv"
     write_csv(path, frames[:50])
     source = open_source(log=path)
@@ -221,15 +222,12 @@ def test_no_traceback_or_log_line_of_python_can_reaches_the_terminal() -> None:
     """python-can logs a warning for every socketcand message a TCP read cuts in two, and
     the traceback of a frame it cannot parse; Python prints those on stderr unless a
     handler takes them. lpam's terminal must show neither."""
-    if recording_path() is None:
-        recording()
-    done = run_python(f"""
+    done = run_python("""
         import time
-        from pathlib import Path
         from reconciler.adapters.can.sources import open_source
-        from tests.canlog import read_log
+        from tests.canlog import drive
         from tests.socketcand import SocketcandServer
-        frames = read_log(Path({str(recording_path())!r}))
+        frames = drive()
         with SocketcandServer(frames, offset=330, speed=20.0) as server:
             source = open_source(bus=server.config())
             got = list(source.frames(time.monotonic() + 0.6))

@@ -100,6 +100,26 @@ def test_version_status_and_validate(tmp_path: Path) -> None:
     assert not (tmp_path / "root").exists()  # validate and status write nothing
 
 
+def test_validate_says_which_kind_it_read_and_takes_kind(tmp_path: Path) -> None:
+    lpam = Lpam(tmp_path / "root")
+    agent = tmp_path / "agent.yaml"
+    agent.write_text("version: 1\nsource: {url: 'https://h/fleet'}\nvehicle: rav4-07\n")
+    done = lpam("validate", str(agent))
+    assert done.returncode == 0 and "is agent settings" in done.stdout, done.stderr
+    forced = lpam("validate", "--kind", "desired-state", str(agent))
+    assert forced.returncode == 1
+    assert forced.stderr.startswith(f"error: {agent}:3:1: vehicle: Input should be a valid "
+                                    "dictionary")  # the report, now only when forced
+    vague = tmp_path / "vague.yaml"
+    vague.write_text("version: 1\n")
+    unknown = lpam("validate", str(vague))
+    assert unknown.returncode == 1 and "Traceback" not in unknown.stderr
+    assert unknown.stderr.startswith(f"error: {vague}:1:1: cannot tell which kind")
+    assert "--kind desired-state" in unknown.stderr
+    assert lpam("validate", "--kind", "desired-state", str(vague)).returncode == 0
+    assert not (tmp_path / "root").exists()
+
+
 def test_apply_without_yes_refuses_when_not_interactive(
     tmp_path: Path, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:

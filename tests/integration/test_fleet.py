@@ -42,8 +42,14 @@ def test_fleet_status_shows_every_car_from_a_clone(
     assert rows["rav4-07"]["app"] == "alpha" and rows["rav4-07"]["applied"] == good
     assert rows["rav4-07"]["last_pass"] == "failed" and "aap" in rows["rav4-07"]["reason"]
     assert rows["rav4-07"]["up_to_date"] is False
+    # which file each car follows, even one whose file has a fault, and how old its report is
+    assert rows["rav4-01"]["follows"] == "vehicles/rav4-01.yaml"
+    assert rows["rav4-07"]["follows"] == "vehicles/rav4-07.yaml"
+    assert all(isinstance(r["age_seconds"], int) and r["age"].endswith(" ago")
+               for r in rows.values())
     table = Lpam(tmp_path / "laptop")("fleet", "status", "--repo", str(clone)).stdout
     assert "rav4-07" in table and "failed" in table and "rav4-01" in table
+    assert "vehicles/rav4-07.yaml" in table and "Last report" in table
 
 
 def test_a_car_does_not_fetch_the_other_cars_status(

@@ -1,8 +1,11 @@
-"""Update gates end to end: the real CLI, the real RAV4 drive replayed as the libpanda CSV
-the recording app writes (followed through /etc/libpanda.d/currentCan.csv) and through a
+"""Update gates end to end: the real CLI, a RAV4 drive replayed as the libpanda CSV the
+recording app writes (followed through /etc/libpanda.d/currentCan.csv) and through a
 socketcand server on 127.0.0.1, real lock holders, real git. The decisions must be what the
-recording's speed shows at each instant of the drive: it stands for two minutes, drives
-(a stop at a light at 281-299 s), parks at 669 s and stands to the end (779 s)."""
+drive's speed shows at each instant: the generated drive (tests/drive.py) stands for two
+minutes, drives (a stop at a light at 280.75-299 s), parks at 668.75 s and stands to the
+end (780 s). The key decisions are also taken on the real recording that drive is shaped
+after, where `../shared/data` lies beside the checkout (skipped, saying why, elsewhere):
+both drives must read the same at the same instants."""
 
 from __future__ import annotations
 
@@ -16,9 +19,18 @@ from collections.abc import Callable, Iterator
 from datetime import datetime
 from pathlib import Path
 
+import can
 import pytest
 
-from tests.canlog import SPEED_ID, CsvWriter, between, recording, speed_kmh, write_csv
+from tests.canlog import (
+    SPEED_ID,
+    CsvWriter,
+    between,
+    drive,
+    recorded_drive,
+    speed_kmh,
+    write_csv,
+)
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, desired
 from tests.integration.conftest import fleet_state
@@ -27,15 +39,15 @@ from tests.socketcand import SocketcandServer
 LINK = "etc/libpanda.d/currentCan.csv"
 
 
-def drive() -> list:  # type: ignore[type-arg]
-    frames = recording()  # the drive: ../shared/data, else tests/fixtures
-    return frames
+DRIVES = {"generated": drive, "recorded": recorded_drive}
 
 
-def csv_at(lpam: Lpam, instant: float, *, history: float = 120.0) -> float:
-    """The recording app's CSV as it stands `instant` seconds into the drive, stamped so
-    that this instant is now, behind the link libpanda re-points; the speed then."""
-    frames = drive()
+def csv_at(lpam: Lpam, instant: float, *, history: float = 120.0,
+           frames: list[can.Message] | None = None) -> float:
+    """The recording app's CSV as it stands `instant` seconds into the drive (the generated
+    one unless `frames` are given), stamped so that this instant is now, behind the link
+    libpanda re-points; the speed then."""
+    frames = drive() if frames is None else frames
     start = frames[0].timestamp
     shown = between(frames, max(0.0, instant - history), instant)
     data = lpam.root / "data" / f"drive-{instant:g}.csv"
@@ -74,23 +86,32 @@ def vehicle_gate(found: dict) -> dict:  # type: ignore[type-arg]
     return gate
 
 
+@pytest.fixture(params=sorted(DRIVES))
+def either_drive(request: pytest.FixtureRequest) -> list[can.Message]:
+    """The generated drive, then the recorded one (skipped, saying why, where
+    ../shared/data is absent: before the test's git server and root are set up)."""
+    return DRIVES[request.param]()
+
+
 @pytest.mark.parametrize(("instant", "is_open", "words"), [
-    (100.0, True, "parked"),        # standing since the recording began (100 s ≥ 30 s)
-    (200.0, False, "moving"),       # driving
-    (295.0, False, "stationary for 1"),  # 14 s into the 18-s stop at a light: not parked
-    (720.0, True, "parked"),        # 51 s after parking
+    (100.0, True, "parked"),                # standing since the drive began (100 s ≥ 30 s)
+    (200.0, False, "moving: 57.7 km/h"),    # cruising
+    (295.0, False, "stationary for 14 s of the 30 s needed"),  # 14 s into the stop at a
+                                            # light: not parked
+    (720.0, True, "parked"),                # 51 s after parking
 ])
 def test_the_gate_reads_the_drive_as_its_speed_shows(
-    lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon,
+    either_drive: list[can.Message], lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon,
     instant: float, is_open: bool, words: str,
 ) -> None:
-    speed = csv_at(lpam, instant)
+    """The same words at the same instants of the generated drive and of the real one."""
+    speed = csv_at(lpam, instant, frames=either_drive)
     lpam.desired(gated(git_daemon.url("apps.git"), "alpha",
                        "gates: {stationary_seconds: 30}\n"))
     found = gates_now(lpam)
     gate = vehicle_gate(found)
     assert gate["open"] is is_open and words in gate["detail"], gate
-    assert f"{speed:.1f} km/h" in gate["detail"]  # the recording's own speed then
+    assert f"{speed:.1f} km/h" in gate["detail"]  # the drive's own speed then
     assert "currentCan.csv" in gate["detail"]
     assert found["open"] is is_open
 
@@ -120,8 +141,8 @@ def test_a_moving_car_defers_the_switch_and_a_parked_one_lets_it_through(
 def test_wait_lets_the_cutover_happen_when_the_car_stops_at_the_light(
     lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon,
 ) -> None:
-    """The CSV grows as the car brakes for the light (281 s); with stationary_seconds 5 the
-    gate opens about 5 s after it stands, within --wait."""
+    """The CSV grows as the car brakes for the light (280.75 s); with stationary_seconds 5
+    the gate opens about 5 s after it stands, within --wait."""
     url = alpha_running(lpam, git_daemon)
     frames = drive()
     start = frames[0].timestamp
@@ -139,7 +160,7 @@ def test_wait_lets_the_cutover_happen_when_the_car_stops_at_the_light(
         waited = time.monotonic() - began
     assert done.returncode == 0, done.stderr
     assert lpam.events()[-1] == "beta:start:"
-    assert 10 < waited < 40  # it did wait for the stop (281 s) plus 5 s standing
+    assert 10 < waited < 40  # it did wait for the stop (280.75 s) plus 5 s standing
 
 
 def test_wait_on_a_live_socketcand_bus(lpam: Lpam, repo: RepoBuilder,

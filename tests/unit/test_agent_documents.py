@@ -19,6 +19,13 @@ def test_a_good_agent_yaml_reads_back(tmp_path: Path) -> None:
     config = load_agent(path)
     assert (config.source.url, config.source.branch) == ("https://github.com/lab/fleet", "main")
     assert (config.vehicle, config.vehicle_file) == (None, "/etc/libpanda.d/vin")
+    assert config.heartbeat_seconds == 6 * 3600  # hours, not minutes, unless set
+
+
+def test_the_heartbeat_is_a_setting(tmp_path: Path) -> None:
+    path = tmp_path / "agent.yaml"
+    path.write_text("version: 1\nsource: {url: 'https://h/f'}\nheartbeat_seconds: 3600\n")
+    assert load_agent(path).heartbeat_seconds == 3600
 
 
 @pytest.mark.parametrize(("body", "expected", "line"), [
@@ -30,6 +37,12 @@ def test_a_good_agent_yaml_reads_back(tmp_path: Path) -> None:
     ("source: {url: 'https://h/f'}\ninterval_seconds: 1", "greater than or equal to 10", 3),
     ("source: {url: 'https://h/f'}\nintervall: 60", "unknown key 'intervall'", 3),
     ("vehicle: a", "source is required", 1),
+    ("source: {url: 'https://h/f'}\nheartbeat_seconds: 60", "greater than or equal to 300", 3),
+    ("source: {url: 'https://h/f'}\nheartbeat_seconds: 1e9", "less than or equal to 604800",
+     3),
+    ("source: {url: 'https://h/f'}\nheartbeat_seconds: six", "a valid number", 3),
+    ("source: {url: 'https://h/f'}\ninterval_seconds: 3600\nheartbeat_seconds: 600",
+     "shorter than interval_seconds", 4),
 ])
 def test_bad_agent_yaml_is_located(tmp_path: Path, body: str, expected: str, line: int) -> None:
     path = tmp_path / "agent.yaml"

@@ -13,6 +13,7 @@ import migrations
 from migrations import (
     CURRENT,
     STEPS,
+    agent_status_v1_to_v2,
     desired_state_v0_to_v1,
     state_record_v1_to_v2,
     state_record_v2_to_v3,
@@ -22,6 +23,7 @@ from migrations import (
 from migrations.step import MigrationError
 from reconciler.errors import ConfigError, VersionError
 from reconciler.loading import load
+from schemas.agent import AgentStatus
 from schemas.desired import DesiredState
 from schemas.record import StateRecord
 
@@ -32,6 +34,7 @@ STEP_FIXTURES = {
     ("state-record", "1"): FIXTURES / "state-record" / "v1_to_v2",
     ("state-record", "2"): FIXTURES / "state-record" / "v2_to_v3",
     ("state-record", "3"): FIXTURES / "state-record" / "v3_to_v4",
+    ("agent-status", "1"): FIXTURES / "agent-status" / "v1_to_v2",
 }
 PATH = Path("doc.yaml")
 
@@ -45,6 +48,7 @@ V0_PAIRS = pairs(STEP_FIXTURES[("desired-state", "0.0")])
 RECORD_PAIRS = pairs(STEP_FIXTURES[("state-record", "1")])
 RECORD_V3_PAIRS = pairs(STEP_FIXTURES[("state-record", "2")])
 RECORD_V4_PAIRS = pairs(STEP_FIXTURES[("state-record", "3")])
+AGENT_STATUS_V2_PAIRS = pairs(STEP_FIXTURES[("agent-status", "1")])
 
 
 def read(path: Path) -> Any:
@@ -118,6 +122,24 @@ def test_state_record_v3_to_v4_matches_fixture_and_validates(before: Path, after
     assert record.cutover is None
     # an app the old rules installed was taken for good: it stays a rollback target
     assert record.app is None or record.app.good
+
+
+@pytest.mark.parametrize(("before", "after"), AGENT_STATUS_V2_PAIRS, ids=lambda p: p.name)
+def test_agent_status_v1_to_v2_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert agent_status_v1_to_v2.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    status = AgentStatus.model_validate(upgrade("agent-status", data, path=before))
+    # never published under the new rules: the next online pass publishes
+    assert status.publication is None and status.follows is None
+    assert status.passes == AgentStatus.model_validate(read(after)).passes
+
+
+def test_an_agent_status_v1_claiming_v2_fields_is_refused() -> None:
+    with pytest.raises(ConfigError) as info:
+        upgrade("agent-status", {"version": 1, "follows": "x.yaml"}, path=PATH)
+    assert "follows" in info.value.message
 
 
 def test_state_record_v1_with_a_bad_flag_is_located() -> None:

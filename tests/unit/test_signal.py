@@ -1,7 +1,8 @@
-"""Reading one signal from a CAN frame: the RAV4's speed from a real drive, `decode` against
-cantools' own decoding for any signal a classic frame can hold, `check` naming each way a
-definition cannot fit, and `from_dbc` turning a DBC file into a definition or a ConfigError
-that names the file."""
+"""Reading one signal from a CAN frame: the RAV4's speed from the generated drive and, where
+`../shared/data` is beside the checkout, from the real one it is shaped after (skipped,
+saying why, elsewhere), `decode` against cantools' own decoding for any signal a classic
+frame can hold, `check` naming each way a definition cannot fit, and `from_dbc` turning a
+DBC file into a definition or a ConfigError that names the file."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from hypothesis import strategies as st
 
 from reconciler.errors import ConfigError
 from reconciler.vehicle.signal import RAV4_SPEED, ByteOrder, SignalDef, check, decode, from_dbc, raw
-from tests.canlog import recording_text
+from tests.canlog import candump_line, drive, recorded_text
 
 FRAME = re.compile(r"^\((?P<ts>[\d.]+)\) \S+ (?P<id>[0-9A-F]+)#(?P<data>[0-9A-F]*)$")
 
@@ -30,35 +31,72 @@ BO_ 180 SPEED: 8 XXX
 """
 
 
-@pytest.fixture(scope="module")
-def drive() -> dict[str, bytes]:
-    """Every SPEED (0x0B4) frame of the recorded drive, by its timestamp."""
+def speed_frames(text: str) -> dict[str, bytes]:
+    """Every SPEED (0x0B4) frame of a candump log's text, by its timestamp as written."""
     frames = {}
-    for line in recording_text().splitlines():
+    for line in text.splitlines():
         match = FRAME.match(line)
         if match and int(match["id"], 16) == RAV4_SPEED.frame_id:
             frames[match["ts"]] = bytes.fromhex(match["data"])
     return frames
 
 
-# Frames of the drive and their speed worked out by hand: bytes 5 and 6, big-endian, x 0.01.
+@pytest.fixture(scope="module")
+def generated() -> dict[str, bytes]:
+    """The generated drive's SPEED frames, read back from the log text it is written as."""
+    return speed_frames("".join(candump_line(m) for m in drive()))
+
+
+@pytest.fixture(scope="module")
+def recorded() -> dict[str, bytes]:
+    """The real drive's SPEED frames (the test is skipped without ../shared/data)."""
+    return speed_frames(recorded_text())
+
+
+# Frames of the generated drive and their speed worked out by hand: bytes 5 and 6,
+# big-endian, x 0.01.
 @pytest.mark.parametrize(("timestamp", "data", "speed"), [
-    ("1628870267.338682", "000000006000001C", 0.0),    # 00 00: standing at the start
-    ("1628870389.455381", "000000006800E90D", 2.33),   # 00 E9 = 233: moving off
-    ("1628870433.974374", "00000000410C252E", 31.09),  # 0C 25 = 3109
-    ("1628870493.638699", "00000000A11677EA", 57.51),  # 16 77 = 5751: near the top speed
-    ("1628870688.664435", "000000009912A50C", 47.73),  # 12 A5 = 4773
-    ("1628870997.926276", "00000000040000C0", 0.0),    # parked at the end
+    ("1717236000.020596", "00000000000000BC", 0.0),    # 00 00: standing at the start
+    ("1717236121.521356", "00000000000034F0", 0.52),   # 00 34 = 52: pulling away
+    ("1717236163.021374", "00000000DD0F9C44", 39.96),  # 0F 9C = 3996
+    ("1717236199.770485", "000000009F168DFE", 57.73),  # 16 8D = 5773: cruising
+    ("1717236280.520881", "00000000E50054F5", 0.84),   # 00 54 = 84: braking for the light
+    ("1717236480.020234", "00000000D803079E", 7.75),   # 03 07 = 775: slowing for a turn
+    ("1717236779.771098", "00000000120000CE", 0.0),    # parked at the end
 ])
-def test_rav4_speed_from_the_recorded_drive(
-        drive: dict[str, bytes], timestamp: str, data: str, speed: float) -> None:
-    frame = drive[timestamp]
+def test_rav4_speed_from_the_generated_drive(
+        generated: dict[str, bytes], timestamp: str, data: str, speed: float) -> None:
+    frame = generated[timestamp]
     assert frame == bytes.fromhex(data)
     assert decode(RAV4_SPEED, frame) == pytest.approx(speed, abs=1e-9)
 
 
-def test_the_whole_drive_reads_as_the_recording_describes(drive: dict[str, bytes]) -> None:
-    speeds = [decode(RAV4_SPEED, data) for data in drive.values()]
+def test_the_whole_generated_drive_reads_as_its_profile(generated: dict[str, bytes]) -> None:
+    speeds = [decode(RAV4_SPEED, data) for data in generated.values()]
+    assert len(speeds) == 3120  # 780 s, four a second
+    assert None not in speeds
+    assert speeds[0] == speeds[-1] == 0.0  # stands at the start and the end
+    assert max(s for s in speeds if s is not None) == pytest.approx(58.15)
+
+
+# Frames of the real drive and their speed worked out by hand from bytes 5-6, as above (only
+# the speed is kept here, not the recording's bytes).
+@pytest.mark.parametrize(("timestamp", "speed"), [
+    ("1628870267.338682", 0.0),    # 00 00: standing at the start
+    ("1628870389.455381", 2.33),   # 00 E9 = 233: moving off
+    ("1628870433.974374", 31.09),  # 0C 25 = 3109
+    ("1628870493.638699", 57.51),  # 16 77 = 5751: near the top speed
+    ("1628870688.664435", 47.73),  # 12 A5 = 4773
+    ("1628870997.926276", 0.0),    # parked at the end
+])
+def test_rav4_speed_from_the_recorded_drive(
+        recorded: dict[str, bytes], timestamp: str, speed: float) -> None:
+    assert decode(RAV4_SPEED, recorded[timestamp]) == pytest.approx(speed, abs=1e-9)
+
+
+def test_the_whole_recorded_drive_reads_as_its_readme_describes(
+        recorded: dict[str, bytes]) -> None:
+    speeds = [decode(RAV4_SPEED, data) for data in recorded.values()]
     assert len(speeds) == 1279
     assert None not in speeds
     assert speeds[0] == speeds[-1] == 0.0  # stands at the start and the end

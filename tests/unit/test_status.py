@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from reconciler import status
-from reconciler.errors import GitError
+from reconciler.errors import GitError, StoreDamagedError
 from reconciler.layout import Layout
 from reconciler.state import write_record
 from schemas.record import AppRecord, AppStatus, RepositoryRecord, StateRecord, Stray
@@ -25,11 +25,24 @@ class Blobs:
 
     def __init__(self, files: dict[tuple[str, str, str], bytes | Exception]) -> None:
         self.files = files
+        self.damaged: dict[str, str] = {}  # key → damage: its objects unreadable
+        self.lost: set[str] = set()  # damaged keys whose objects seem absent (a lost index)
 
     def has_commit(self, key: str, commit: str) -> bool:
+        if key in self.lost:
+            return False
+        self._readable(key)
         return any(k == key and c == commit for k, c, _ in self.files)
 
+    def damage(self, key: str) -> str | None:
+        return self.damaged.get(key)
+
+    def _readable(self, key: str) -> None:
+        if key in self.damaged:
+            raise StoreDamagedError(key, self.damaged[key])
+
     def read_file(self, key: str, commit: str, path: str) -> bytes | None:
+        self._readable(key)
         found = self.files.get((key, commit, path))
         if isinstance(found, Exception):
             raise found
@@ -56,7 +69,7 @@ def record(app: str | None = "alpha", state: AppStatus = "running", *,
         generation="g1", status=state)
     return StateRecord(
         repositories=[RepositoryRecord(key="apps", url="git://x/apps.git", ref=None,
-                                       commit=NEW)],
+                                       commit=NEW, applied=NEW)],
         app=installed, strays=strays or [])
 
 
@@ -134,3 +147,27 @@ def test_an_app_installed_without_a_record_is_shown(layout: Layout) -> None:
         {"name": "alpha", "generation": "g1", "stopped": False, "pending": None}]
     table = status.as_table(layout, store=Blobs({}))
     assert "No app repositories" in table and "without a record: alpha" in table
+
+
+@pytest.mark.parametrize("lost", [False, True], ids=["unreadable", "objects-gone"])
+def test_a_damaged_repository_keeps_its_row_and_the_rest_still_shows(
+    layout: Layout, lost: bool,
+) -> None:
+    """Issue 18, item 10: a broken pack gave an internal error for the whole table."""
+    store = blobs()
+    store.files[("tools", NEW, "libpanda-apps.yaml")] = b"apps:\n  - name: gamma\n"
+    store.damaged["apps"] = "objects/pack/pack-1.pack does not match its checksum"
+    if lost:
+        store.lost.add("apps")
+    tools = RepositoryRecord(key="tools", url="git://x/tools.git", ref=None, commit=NEW)
+    both = record()
+    write_record(layout, both.model_copy(update={"repositories": [*both.repositories, tools]}))
+    shown = status.as_json(layout, store=store)
+    assert [(r["repository"], r["app"], r["installed"]) for r in shown["apps"]] == [
+        ("apps", "-", False), ("tools", "gamma", False), ("apps", "alpha", True)]
+    assert shown["apps"][0]["damage"] == store.damaged["apps"]
+    assert "next `lpam apply` fetches it anew" in shown["apps"][0]["description"]
+    table = status.as_table(layout, store=store)
+    assert "Repository apps: its copy in the store is damaged: objects/pack/pack-1.pack " \
+        "does not match its checksum; the next `lpam apply` moves it aside and fetches " \
+        "it anew." in table.splitlines()

@@ -1,0 +1,114 @@
+"""When a car publishes its status to the fleet repository, and how much history it keeps:
+the pure rules behind workflow/sync.py `publish` (no I/O, no clock of their own, no git).
+
+Place in the flow: after a pass that reached the source (its fetch, one ref advertisement,
+succeeded), the agent asks `due` whether its status must go to the branch
+`status/<vehicle>`; only then does it open a second connection, a push. A pass that
+changed nothing costs one connection and no commit, where every pass used to cost two
+connections and one commit (100 cars every 5 minutes: 28,800 commits a day).
+
+What counts as a change (`essentials`), exactly:
+
+- the vehicle id, the file of the source it follows, the revision it would apply and the
+  revision it applied;
+- the last pass's revision and result, where `applied` and `nothing to do` count as one
+  (both say "this car runs that revision as desired": a pass with nothing to do after one
+  that applied is no news), and its reason, except a deferral's: that names the seconds
+  and the speed of the moment ("stationary for 12 s") and would make every deferred pass
+  news; that the pass was deferred still counts;
+- the app: its name, generation, lifecycle status and whether it runs.
+
+Not counted: the times of the passes and their list (every pass adds one), and the last
+publication itself.
+
+When (`due`): the first time; when the essentials differ from the last attempt's; when the
+heartbeat (agent.yaml `heartbeat_seconds`) has passed since the last attempt, so that a
+quiet car is still seen alive; and at the next pass after an attempt that `failed` (the
+network, not the repository). A repository that `refused` the push (read-only, no write
+access for this car) is asked again only at the next change or heartbeat, not every pass.
+A clock that went back (a Pi has no real-time clock) makes the heartbeat due at once
+rather than never.
+
+How much history (`keeps_parent`): each publication is one commit on `status/<vehicle>`,
+on top of the last while the branch holds fewer than `HISTORY` commits; the next one
+starts the branch afresh, with no parent, and the car pushes it over its own branch (a
+non-fast-forward push). A status branch thus holds 1 to `HISTORY` commits however long the
+car runs. Rewriting is safe there, unlike on a shared branch: only this car writes
+`status/<vehicle>`, nothing is built on it, and `lpam fleet status` reads only its tip; the
+dropped commits become unreachable and the server's garbage collection removes them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+from datetime import datetime
+from typing import Any
+
+from schemas.agent import AgentStatus, Publication
+
+HISTORY = 10
+"""The most commits a status branch holds: the last few reports stay readable with
+`git log status/<vehicle>`, and a year of heartbeats does not pile up in every clone."""
+
+CONVERGED = frozenset({"applied", "nothing to do"})
+"""Pass results that say the same thing about the car: it runs the revision as desired."""
+
+VOLATILE_REASONS = frozenset({"deferred"})
+"""Results whose reason changes from pass to pass (gate readings) and so does not count."""
+
+APP_FIELDS = ("name", "generation", "status", "running")
+"""What the fleet sees of the installed app (from `lpam status --json`)."""
+
+
+def essentials(status: AgentStatus, app: Mapping[str, Any] | None) -> dict[str, Any]:
+    """What of this status counts as a change: see the module docstring."""
+    last = status.last_attempt
+    attempt = None
+    if last is not None:
+        result = "converged" if last.result in CONVERGED else last.result
+        reason = None if last.result in VOLATILE_REASONS else last.reason
+        attempt = {"revision": last.revision, "result": result, "reason": reason}
+    return {
+        "vehicle": status.vehicle,
+        "follows": status.follows,
+        "desired_revision": status.desired_revision,
+        "applied_revision": status.applied_revision,
+        "last_attempt": attempt,
+        "app": None if app is None else {key: app.get(key) for key in APP_FIELDS},
+    }
+
+
+def fingerprint(status: AgentStatus, app: Mapping[str, Any] | None) -> str:
+    """A digest of the essentials: equal exactly when nothing that counts changed."""
+    text = json.dumps(essentials(status, app), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def due(last: Publication | None, mark: str, now: datetime, *,
+        heartbeat: float) -> str | None:
+    """Why this status must be published now (`first`, `changed`, `retry`, `heartbeat`),
+    or None when the pass publishes nothing. `mark` is this status's fingerprint, `now`
+    the time of the pass, `heartbeat` the agent's `heartbeat_seconds`."""
+    if last is None:
+        return "first"
+    if last.fingerprint != mark:
+        return "changed"
+    if last.result == "failed":
+        return "retry"
+    try:
+        then = datetime.fromisoformat(last.time)
+        elapsed = (now - then).total_seconds()
+    except (ValueError, TypeError):  # unreadable, or naive against aware: no trust in it
+        return "heartbeat"
+    if elapsed >= heartbeat or elapsed < 0:
+        return "heartbeat"
+    return None
+
+
+def keeps_parent(length: int, bound: int = HISTORY) -> bool:
+    """Whether the next status commit goes on top of the branch's tip (which holds `length`
+    commits, 0 without one) or starts the branch afresh, so that it never holds more than
+    `bound` commits."""
+    return 0 < length < bound

@@ -1,0 +1,102 @@
+"""The logs use case: what the installed app printed, from wherever that is known.
+
+A scriptless app's unit, and a script app's unit that the service manager knows, have
+their output in the manager (supervisord's log file, systemd's journal). A script app
+whose unit the manager cannot know (the field's apps name systemd units; under
+supervisord those are not its own) still printed something lpam saw: its scripts' output
+during lpam's applies, in the run logs (`<root>/var/log/lpam/<command>-<time>-<pid>.log`,
+each script's output under a `== APP: bash SCRIPT (in DIR)` line). That is shown, with a
+plain word on where the unit's own output is. Nothing known at all is an error naming
+where to look — never an empty answer with exit 0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from reconciler.errors import LpamError
+from reconciler.layout import Layout
+from reconciler.workflow.machine import Machine
+
+LOG_FILES = 50  # run logs looked at, newest first: enough for weeks of applies
+READ_LIMIT = 1024 * 1024  # bytes of one run log
+
+
+@dataclass(frozen=True)
+class Shown:
+    """Lines to print, notes to say beside them, and whether `-f` can follow the source."""
+
+    lines: list[str]
+    notes: list[str] = field(default_factory=list)
+    unit: str | None = None  # the unit to follow, when its manager has its output
+
+
+def app_logs(machine: Machine, lines: int) -> Shown:
+    """The installed app's last `lines` lines of output."""
+    from reconciler.state import read_record
+
+    app = read_record(machine.layout).app
+    if app is None:
+        raise LpamError("no app is installed: there is no output to show",
+                        hint="install one with `lpam apply`")
+    if app.service is not None:
+        state = machine.services.state(app.service)
+        if state.known:
+            said = machine.services.logs(app.service, lines)
+            notes = [] if said else [f"unit {app.service} has printed nothing yet"]
+            return Shown(said, notes, unit=app.service)
+    scripts = script_output(machine.layout, app.name, lines)
+    where = (f"unit {app.service} is not known to {machine.services.kind}: its own output is "
+             f"where it writes (on a vehicle with systemd: `journalctl -u {app.service}`)"
+             if app.service is not None else f"{app.name} names no unit (no `service` file)")
+    if not scripts:
+        raise LpamError(f"no output of {app.name} is known to lpam: {where}",
+                        hint=f"its scripts' output would be in {machine.layout.logs}/*.log")
+    return Shown(scripts, [f"{where}; below, what its scripts printed during lpam's runs"])
+
+
+def script_output(layout: Layout, app: str, lines: int) -> list[str]:
+    """The last `lines` lines the app's scripts printed in lpam's run logs, oldest first,
+    each script's part under its `== ` line and the run it came from."""
+    found: list[str] = []
+    for log in _newest_first(layout.logs):
+        part = list(_sections(log, app))
+        found = part + found
+        if len(found) >= lines:
+            break
+    return found[-lines:] if lines > 0 else []
+
+
+def _newest_first(folder: Path) -> list[Path]:
+    try:
+        logs = [p for p in folder.glob("*.log") if p.is_file() and not p.is_symlink()]
+    except OSError:
+        return []
+    # `<command>-<YYYYmmddTHHMMSSZ>-<pid>.log`: the time sorts them
+    logs.sort(key=lambda p: (p.name.split("-")[1:2], p.name), reverse=True)
+    return logs[:LOG_FILES]
+
+
+def _sections(log: Path, app: str) -> Iterator[str]:
+    """The lines of `log` under the headers of `app`'s scripts (header included)."""
+    try:
+        with open(log, "rb") as handle:
+            handle.seek(0, 2)
+            size = handle.tell()
+            handle.seek(max(size - READ_LIMIT, 0))
+            text = handle.read().decode("utf-8", "replace")
+    except OSError:
+        return
+    mine = False
+    header = f"== {app}: "
+    run = log.name.removesuffix(".log")
+    for line in text.splitlines():
+        if line.startswith("== "):
+            mine = line.startswith(header)
+            if mine:
+                yield f"{line}  [{run}]"
+            continue
+        if mine:
+            yield line
