@@ -373,26 +373,15 @@ def _last_apply(layout: Layout, record: StateRecord) -> str | None:
     why = f": {last.reason}" if last.reason else ""
     if last.result == "in progress":
         from reconciler.execution.lock import holder
+        from reconciler.process import alive
 
-        if last.pid is not None and _alive(last.pid) and holder(layout) is not None:
+        if last.pid is not None and alive(last.pid) and holder(layout) is not None:
             return f"in progress since {last.time} (pid {last.pid})"
         return (f"cut off (began {last.time}; lpam was killed or the power failed): "
                 f"`{last.command or 'lpam apply'}` goes on from where it stood")
     again = f"; `{last.command}` goes on from where it stood" \
         if last.result == "interrupted" and last.command else ""
     return f"{last.result} at {last.time}{why}{again}"
-
-
-def _alive(pid: int) -> bool:
-    import os
-
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _cutover_footer(record: StateRecord) -> list[str]:

@@ -28,10 +28,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import pytest
-
-from reconciler.adapters.services.supervisor import shutdown
-from reconciler.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam
 from tests.integration.test_fault_truth import BUS, CATALOG, apps_running, bus_holders
@@ -84,18 +80,6 @@ def describe(pids: list[int]) -> str:
                        Path(f"/proc/{pid}/environ").read_bytes().split(b"\0") if b"=" in item)
             out.append(f"{pid} (parent {stat[1]}, {env.get(b'LPAM_APP', b'?').decode()})")
     return ", ".join(out)
-
-
-@pytest.fixture
-def lpam(tmp_path: Path) -> Iterator[Lpam]:
-    runner = Lpam(tmp_path / "root")
-    try:
-        yield runner
-    finally:
-        shutdown(Layout(runner.root))
-        for pid in bus_holders(runner.root):
-            with contextlib.suppress(OSError):
-                os.kill(pid, signal.SIGKILL)
 
 
 def supervisord(root: Path) -> int | None:

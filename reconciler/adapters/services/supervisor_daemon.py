@@ -38,6 +38,7 @@ from reconciler.atomic import write_atomic
 from reconciler.errors import ServiceError
 from reconciler.flock import wait_exclusive
 from reconciler.layout import Layout
+from reconciler.process import alive
 
 CALL_TIMEOUT = 10.0  # an answer to a question; starting and stopping get their own bound
 LAUNCH_TIMEOUT = 10.0  # from launching supervisord to its first answer
@@ -218,21 +219,6 @@ def _launch(layout: Layout) -> Client:
                 f"supervisord started but did not answer on {sock} within "
                 f"{LAUNCH_TIMEOUT:g} s", hint=hint)
         time.sleep(POLL)
-
-
-def alive(pid: int) -> bool:
-    """True while `pid` runs; a zombie (PID 1 here may never reap one) is not running."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return True
-    return fields.rsplit(")", 1)[-1].split()[:1] != ["Z"]
 
 
 def _wait_gone(pid: int, seconds: float) -> bool:
