@@ -35,7 +35,6 @@ Progress goes to stderr, a Markdown report to stdout (docs/benchmarks.md keeps o
 from __future__ import annotations
 
 import argparse
-import itertools
 import os
 import platform
 import shlex
@@ -181,7 +180,7 @@ class Bench:
 
 
 def _runs_module(argv: list[str], module: str) -> bool:
-    return any(a == "-m" and b == module for a, b in itertools.pairwise(argv))
+    return any(a == "-m" and b == module for a, b in zip(argv, argv[1:]))
 
 
 def applies(bench: Bench, rep: int) -> dict[str, Apply]:

@@ -17,7 +17,7 @@ import math
 import re
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Union
 
 from migrations import (
     agent_status_v1_to_v2,
@@ -57,7 +57,7 @@ _NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
 _LABELS = {"desired-state": "desired state", "state-record": "state record", "plan": "plan",
            "agent-config": "agent configuration", "agent-status": "agent status"}
 
-Position = Callable[[Sequence[str | int]], tuple[int, int] | tuple[None, None]]
+Position = Callable[[Sequence[Union[str, int]]], Union[tuple[int, int], tuple[None, None]]]
 
 
 def upgrade(

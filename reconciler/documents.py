@@ -188,7 +188,7 @@ class _JsonPositions:
             return None, None
         # `version` is the migrations' name of the plan's `format_version`
         loc = [self._version_key if part == "version" else part for part in loc]
-        return self._doc.position([p for p in loc if isinstance(p, str | int)])
+        return self._doc.position([p for p in loc if isinstance(p, (str, int))])
 
 
 def load_plan(path: Path) -> Plan:

@@ -211,7 +211,7 @@ def plain(node: Any, path: Path | None = None) -> Any:
                 f"document expands to more than {MAX_NODES} nodes (YAML aliases?)",
                 path=path, line=1, column=1, hint="write the values out instead of aliasing",
             )
-        if isinstance(item, Mapping | list):
+        if isinstance(item, (Mapping, list)):
             if id(item) in active:
                 line, column = locate(item, ())
                 raise ConfigError("a YAML alias refers to itself", path=path, line=line,

@@ -21,7 +21,7 @@ import json
 import uuid
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Optional
 
 from reconciler.atomic import write_atomic
 from reconciler.errors import ConfigError
@@ -41,7 +41,7 @@ DAMAGED_HINT = (
     "desired one"
 )
 
-ExitCode = Callable[[str], int | None]
+ExitCode = Callable[[str], Optional[int]]
 
 SETTLED = {"installing": "installed", "starting": "running", "stopping": "installed"}
 

@@ -304,8 +304,8 @@ def as_table(layout: Layout, *, store: Objects | None = None,
     cells = [[_cell(getattr(r, c)) for c in COLUMNS] for r in table]
     header = [c.capitalize() for c in COLUMNS]
     widths = [max(len(h), *(len(row[i]) for row in cells)) for i, h in enumerate(header)]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)).rstrip()]
-    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)).rstrip()
+    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip()]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths)).rstrip()
               for row in cells]
     return "\n".join([*lines, *strays])
 

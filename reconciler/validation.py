@@ -17,14 +17,14 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, Union
 
 from reconciler.documents import agent_from, catalog_from, desired_from, load_plan
 from reconciler.errors import ConfigError
 from reconciler.loading import Document, load, read_text
 from schemas.catalog import CATALOG_FILE, Catalog
+from schemas.enums import StrEnum
 
 
 class Kind(StrEnum):
@@ -82,7 +82,7 @@ def validate(path: Path, kind: Kind | None = None) -> str:
         raise
 
 
-Position = Callable[[list[str | int]], tuple[int, int]]
+Position = Callable[[list[Union[str, int]]], tuple[int, int]]
 
 
 def guess(data: Any, *, path: Path, position: Position) -> Kind:

@@ -8,10 +8,11 @@ are what runs. Display fields (`summary`, reasons) never change behaviour.
 
 from __future__ import annotations
 
-from enum import StrEnum
-from typing import Literal
+from typing import Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field
+
+from schemas.enums import StrEnum
 
 FORMAT_VERSION: Literal[1] = 1
 
@@ -67,7 +68,7 @@ class StepKind(StrEnum):
     REMOVE = "remove"
 
 
-ArgValue = str | list[str] | dict[str, str] | None
+ArgValue = Optional[Union[str, list[str], dict[str, str]]]
 
 
 class Step(BaseModel):

@@ -16,7 +16,7 @@ import subprocess
 import time
 from pathlib import Path
 from types import TracebackType
-from typing import Self
+from typing import TypeVar
 
 FIXED_ENV = {
     "GIT_AUTHOR_NAME": "Test Author",
@@ -68,6 +68,9 @@ def _accepts(port: int) -> bool:
         return False
 
 
+_Daemon = TypeVar("_Daemon", bound="GitDaemon")
+
+
 class GitDaemon:
     """`git daemon` serving every repository under `base` on a free loopback port."""
 
@@ -83,7 +86,7 @@ class GitDaemon:
     def url(self, name: str) -> str:
         return f"git://127.0.0.1:{self.port}/{name}"
 
-    def __enter__(self) -> Self:
+    def __enter__(self: _Daemon) -> _Daemon:
         self.base.mkdir(parents=True, exist_ok=True)
         for _attempt in range(5):
             self.port = free_port()

@@ -13,7 +13,6 @@ import socket
 import threading
 from collections.abc import Callable, Iterator
 from types import TracebackType
-from typing import Self
 
 # What a drip sends first: for git://, the length of a pkt-line far longer than the test
 # (0xfff0 bytes at two a second); for http://, a status line and a header that never ends.
@@ -45,7 +44,7 @@ class HostileServer:
         auth = f"{userinfo}@" if userinfo else ""
         return f"{scheme}://{auth}127.0.0.1:{self.port}/{path}"
 
-    def __enter__(self) -> Self:
+    def __enter__(self) -> HostileServer:
         self._listener.bind(("127.0.0.1", 0))
         self._listener.listen(16)
         self._listener.settimeout(0.1)

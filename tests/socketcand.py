@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType, TracebackType
-from typing import Any, Self
+from typing import Any
 
 import can
 
@@ -107,7 +107,7 @@ class SocketcandServer:
         return {"interface": "socketcand", "host": "127.0.0.1", "port": self.port,
                 "channel": self.channel}
 
-    def __enter__(self) -> Self:
+    def __enter__(self) -> SocketcandServer:
         self._listener.listen(16)
         self._listener.settimeout(TICK)
         self._start(self._accept)

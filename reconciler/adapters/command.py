@@ -42,7 +42,7 @@ def run_streamed(
     try:
         proc = subprocess.Popen(
             argv, cwd=cwd, env=None if env is None else dict(env), stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, process_group=0)
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
     except OSError as exc:
         return Outcome(127, [f"cannot run {argv[0]}: {exc.strerror}"])
     lines: queue.Queue[bytes | None] = queue.Queue()

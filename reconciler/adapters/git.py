@@ -39,12 +39,10 @@ from pathlib import Path
 
 from dulwich.errors import NotTreeError
 from dulwich.index import (
-    InvalidPathError,
     build_file_from_blob,
     validate_path_element_default,
     validate_path_element_hfs,
     validate_path_element_ntfs,
-    verify_tree_path,
 )
 from dulwich.object_store import iter_tree_contents
 from dulwich.objects import Blob, Commit, ObjectID, SubmoduleEncountered, Tree
@@ -474,20 +472,18 @@ class GitStore:
             self._refuse_oversized(key, repo, commit, tree_id)
             dest.mkdir(parents=True)
             root = os.fsencode(dest)
-            safe_prefix: list[bytes] = []
             try:
                 for entry in iter_tree_contents(repo.object_store, tree_id):
                     assert entry.path is not None and entry.mode is not None
                     assert entry.sha is not None
                     if stat.S_ISDIR(entry.mode) or entry.mode == 0o160000:  # submodule
                         continue
-                    verify_tree_path(entry.path, validate_path_element_default, safe_prefix, root)
-                    target = os.path.join(root, entry.path)
+                    target = _target(root, entry.path)
                     os.makedirs(os.path.dirname(target), exist_ok=True)
                     blob = repo.object_store[entry.sha]
                     assert isinstance(blob, Blob)
                     build_file_from_blob(blob, entry.mode, target)
-            except InvalidPathError as exc:
+            except _UnsafePath as exc:
                 shutil.rmtree(dest, ignore_errors=True)
                 raise GitError(
                     f"{key}: commit {commit} has an unsafe path {exc.args[0]!r} in '{folder}'",
@@ -624,15 +620,61 @@ def _lookup(repo: Repo, commit: str, path: str) -> tuple[int, ObjectID] | None:
 
 
 def _checkout(repo: Repo, commit: str) -> None:
-    from dulwich import porcelain
+    from dulwich import index, porcelain
 
+    found = _commit(repo, commit)
+    planted = None if found is None else _planted_link(repo, found)
+    dulwich_check = getattr(index, "InvalidPathError", None)  # dulwich >= 0.25 checks too
+    refused: tuple[type[BaseException], ...] = (_UnsafePath,) if dulwich_check is None \
+        else (_UnsafePath, dulwich_check)
     try:
+        if planted is not None:
+            raise _UnsafePath(os.fsencode(planted))
         porcelain.checkout(repo, commit, force=True)
-    except InvalidPathError as exc:  # the tree was checked: a symlink planted in the checkout
+    except refused as exc:
         raise GitError(
-            f"cannot check out {commit[:12]} in {repo.path}: {exc}",
+            f"cannot check out {commit[:12]} in {repo.path}: a symlink stands where the "
+            f"commit has a folder ({_printable(exc.args[0]) if exc.args else exc})",
             hint=f"delete {repo.path} (lpam will fetch it again)",
         ) from exc
+
+
+def _planted_link(repo: Repo, commit: Commit) -> str | None:
+    """The first folder of `commit` that is a symlink in the working tree: checking out
+    through it would write outside the repository. Walks trees only, never a blob."""
+    todo: list[tuple[bytes, ObjectID]] = [(b"", commit.tree)]
+    while todo:
+        prefix, tree_id = todo.pop()
+        tree = repo.object_store[tree_id]
+        assert isinstance(tree, Tree)
+        for entry in tree.iteritems():
+            assert entry.path is not None and entry.mode is not None and entry.sha is not None
+            if stat.S_ISDIR(entry.mode):
+                path = prefix + entry.path
+                if os.path.islink(os.path.join(os.fsencode(repo.path), path)):
+                    return os.fsdecode(path)
+                todo.append((path + b"/", entry.sha))
+    return None
+
+
+class _UnsafePath(Exception):
+    """A tree path that would be written outside its folder, or into git's own files."""
+
+
+def _target(root: bytes, path: bytes) -> bytes:
+    """Where the tree's `path` is written under `root`. Refused (`_UnsafePath`) when a part
+    of it is a name git never writes (`.git`, `.`, `..`) or when it goes through a symlink
+    that an earlier entry of the same (malformed) tree wrote: git's own rule, kept here
+    whatever dulwich is installed (0.24, the last for Python 3.9, does not check it)."""
+    parts = path.split(b"/")
+    if not all(validate_path_element_default(part) for part in parts):
+        raise _UnsafePath(path)
+    here = root
+    for part in parts[:-1]:
+        here = os.path.join(here, part)
+        if os.path.islink(here):
+            raise _UnsafePath(path)
+    return os.path.join(root, path)
 
 
 def _safe_name(name: bytes) -> bool:

@@ -184,7 +184,7 @@ def _check_url(url: str, action: str) -> None:
         )
 
 
-def _under(refs: dict[bytes, bytes], prefix: bytes) -> dict[Ref, ObjectID | None]:
+def _under(refs: dict[bytes, bytes], prefix: bytes) -> dict[Ref, ObjectID]:
     """The refs below `prefix`, named relative to it."""
     return {
         Ref(name[len(prefix) :]): ObjectID(sha)

@@ -7,7 +7,10 @@ LPAM_APP_DIR and the app's parameters (names that change how bash or the loader 
 are refused when the desired state is validated).
 
 A script must never outlive what lpam knows about it. Each runs under a tiny bash
-*guard* (`GUARD`), in its own process group:
+*guard* (`GUARD`), in its own process group — made by `start_new_session` (setsid, done in
+C between fork and exec, so safe beside the executor's threads, unlike `preexec_fn`; Python
+3.9 has no `process_group=`). The group is the same; the script also has no controlling
+terminal, so a script that asks the terminal (sudo, debconf) fails instead of hanging:
 - the guard holds the apply lock's descriptor (scripts themselves do not: a daemon that
   `start.sh` leaves behind must not hold the lock forever), so if lpam is killed, no later
   apply starts until the script has ended;
@@ -82,7 +85,7 @@ class ScriptRunner:
             proc = subprocess.Popen(
                 ["bash", "-c", GUARD, "lpam-guard", str(result), fd, "bash", script],
                 cwd=app_dir, env=env, stdin=subprocess.DEVNULL, stdout=out,
-                stderr=subprocess.STDOUT, process_group=0,
+                stderr=subprocess.STDOUT, start_new_session=True,
                 pass_fds=() if self.lock_fd is None else (self.lock_fd,),
             )
         except OSError as exc:
@@ -133,7 +136,8 @@ class ScriptRunner:
         try:
             proc = subprocess.Popen(
                 argv, cwd=app_dir, env=self._env(app, app_dir, params),
-                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, process_group=0,
+                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                start_new_session=True,
             )
         except OSError as exc:
             return False, f"cannot run it: {exc.strerror}"

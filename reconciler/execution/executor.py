@@ -174,7 +174,7 @@ def _checkouts(batch: list[Step], done: int, total: int, ctx: Context,
     first: _Failed | None = None
     with ThreadPoolExecutor(max_workers=CHECKOUT_WORKERS) as pool:
         futures = [pool.submit(work, step) for step in batch]
-        for number, (step, future) in enumerate(zip(batch, futures, strict=True), done + 1):
+        for number, (step, future) in enumerate(zip(batch, futures), done + 1):
             try:
                 future.result()
             except LpamError as exc:

@@ -10,7 +10,6 @@ rules and is reported by name rather than silently broken.
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
@@ -68,7 +67,7 @@ def order(steps: Iterable[Step]) -> list[Step]:
             if _PHASE_ORDER[a.phase] < _PHASE_ORDER[b.phase]:
                 graph.add_edge(a.id, b.id)
     cutover = [s.id for s in steps if s.phase is Phase.CUTOVER]
-    graph.add_edges_from(itertools.pairwise(cutover))
+    graph.add_edges_from(zip(cutover, cutover[1:]))
     for s in steps:
         graph.add_edges_from((need, s.id) for need in s.needs)
     return sort_graph(graph, {s.id: s for s in steps}, index)

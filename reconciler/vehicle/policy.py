@@ -63,7 +63,7 @@ def window(gates: GatesSpec, minute: int) -> GateState:
     if not spans:
         return GateState("window", True, "no windows: any time of day")
     now = f"{minute // 60:02d}:{minute % 60:02d}"
-    inside = [w for w, span in zip(gates.windows, spans, strict=True) if within(span, minute)]
+    inside = [w for w, span in zip(gates.windows, spans) if within(span, minute)]
     if inside:
         return GateState("window", True, f"now {now} is within {inside[0]}")
     return GateState("window", False, f"now {now} is outside {', '.join(gates.windows)}")

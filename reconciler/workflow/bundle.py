@@ -19,13 +19,16 @@ import json
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from reconciler.errors import ConfigError, LpamError
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.sync import DEFAULT_FILE, SOURCE_KEY, VEHICLE_DIR, desired_at
 from schemas.names import is_hex_commit
+
+if TYPE_CHECKING:
+    from dulwich.bundle import Bundle
 
 MANIFEST = b"refs/lpam/manifest"
 FORMAT = 1
@@ -86,7 +89,7 @@ def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report
             write_atomic(out, partial.read_bytes())
             partial.unlink()
         finally:
-            bundle.close()
+            _release(bundle)
     report(Progress(f"bundle of {url} {branch} at {tip[:12]}: {len(entries)} repositories"))
     return len(entries)
 
@@ -153,9 +156,11 @@ def unpack(machine: Machine, path: Path, url: str, branch: str) -> str:
         except (ValueError, AssertionError, KeyError) as exc:
             raise ConfigError(f"not a git bundle lpam wrote: {exc}", path=path,
                               hint="make one with `lpam bundle create`") from None
-        with bundle:
+        try:
             bundle.store_objects(pack.object_store)
             manifest_id = bundle.references.get(Ref(MANIFEST))
+        finally:
+            _release(bundle)
         if manifest_id is None:
             raise ConfigError("this git bundle has no lpam manifest", path=path,
                               hint="make one with `lpam bundle create`")
@@ -197,3 +202,11 @@ def _manifest(raw: bytes, path: Path) -> dict[str, Any]:
                           path=path, hint="make the bundle again with this lpam") from None
     result: dict[str, Any] = data
     return result
+
+
+def _release(bundle: Bundle) -> None:
+    """Close the bundle's pack data: dulwich >= 0.25 keeps it open until `close()`; 0.24,
+    the last dulwich for Python 3.9, reads it whole and has no `close`."""
+    close = getattr(bundle, "close", None)
+    if close is not None:
+        close()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Union
 
 from schemas.plan import Plan
 
@@ -48,6 +49,6 @@ class Phase:
     name: str
 
 
-Event = Note | Progress | Output | Planned | Phase
+Event = Union[Note, Progress, Output, Planned, Phase]
 Report = Callable[[Event], None]
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -83,7 +83,7 @@ def _row(vehicle: str, body: dict[str, Any], tip: str | None, when: int) -> Vehi
         up_to_date=None if tip is None or applied is None else applied == tip,
         app=app.get("name"), running=app.get("running"), last_pass=last.get("result"),
         reason=last.get("reason"),
-        last_seen=datetime.fromtimestamp(when, UTC).isoformat(timespec="seconds"))
+        last_seen=datetime.fromtimestamp(when, timezone.utc).isoformat(timespec="seconds"))
 
 
 def age(row: Vehicle, now: datetime) -> float:
@@ -122,8 +122,8 @@ def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
     cells = [tuple("".join(c if c.isprintable() else "?" for c in v)[:60] for v in row)
              for row in cells]
     widths = [max(len(h), *(len(row[i]) for row in cells)) for i, h in enumerate(header)]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)).rstrip()]
-    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)).rstrip()
+    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip()]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths)).rstrip()
               for row in cells]
     lines.append(f"\nThe cars follow {(tip or 'an unknown revision')[:12]}. A car reports "
                  "when its status changes and at least every\nheartbeat (agent.yaml "

@@ -51,8 +51,11 @@ def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
         raise ConfigError("lpam pin rewrites version 1 desired states only", path=path,
                           hint="upgrade the file first (lpam validate says how)")
     items = data.get("repositories") or []
+    if len(items) != len(desired.repositories):
+        raise ConfigError("the file changed while lpam pinned it", path=path,
+                          hint="run lpam pin again")
     done: list[Pinned] = []
-    for spec, item in zip(desired.repositories, items, strict=True):
+    for spec, item in zip(desired.repositories, items):
         if spec.ref is not None and is_hex_commit(spec.ref) and len(spec.ref) == 40:
             continue
         url = desired.mirrored(spec.source(path.resolve().parent))

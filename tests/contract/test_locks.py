@@ -37,7 +37,7 @@ def flock_held(path: Path) -> Iterator[subprocess.Popen[bytes]]:
 
     The flock process forks `sleep`, which inherits the locked descriptor: killing flock
     alone would leave the lock held, so the whole process group it leads is stopped."""
-    proc = subprocess.Popen(["flock", str(path), "-c", "sleep 30"], process_group=0,
+    proc = subprocess.Popen(["flock", str(path), "-c", "sleep 30"], start_new_session=True,
                             stdin=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + WAIT_SECONDS

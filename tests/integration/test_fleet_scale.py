@@ -18,7 +18,7 @@ import json
 import subprocess
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import UTC, datetime, timedelta
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
@@ -76,7 +76,7 @@ def commits(daemon: GitDaemon, ref: str = BRANCH) -> int:
 class Clock:
     """The agent's clock, moved on by the test instead of by time."""
 
-    now: datetime = datetime(2026, 11, 20, 6, 0, tzinfo=UTC)
+    now: datetime = datetime(2026, 11, 20, 6, 0, tzinfo=timezone.utc)
 
     def __call__(self) -> datetime:
         return self.now

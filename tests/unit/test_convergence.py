@@ -22,7 +22,7 @@ import json
 import os
 import tempfile
 from collections.abc import Callable
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 from pathlib import Path
 
 from hypothesis import example, given, settings
@@ -52,7 +52,7 @@ UNIT_OPS = {"install": "install.sh", "uninstall": "uninstall.sh", "start": "star
             "stop": "stop.sh"}
 SCRIPTS = ("install.sh", "uninstall.sh", "start.sh", "stop.sh")
 STATUSES = ("installing", "installed", "starting", "running", "stopping", "uninstalling")
-NOW = datetime(2026, 11, 22, tzinfo=UTC)
+NOW = datetime(2026, 11, 22, tzinfo=timezone.utc)
 EXAMPLES = int(os.environ.get("LPAM_PROPERTY_EXAMPLES", "150"))  # more: docs/reliability.md
 
 

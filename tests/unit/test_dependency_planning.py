@@ -4,7 +4,7 @@ everything they need runs before the cutover — and nothing runs when nothing c
 from __future__ import annotations
 
 from dataclasses import replace
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 
 import pytest
 
@@ -28,7 +28,7 @@ from schemas.record import AppRecord, RepositoryRecord, StateRecord
 
 A, T1 = "a" * 40, "1" * 40
 R1, R2 = "17dd12e9" + "0" * 32, "d7134708" + "0" * 32
-NOW = datetime(2026, 11, 23, tzinfo=UTC)
+NOW = datetime(2026, 11, 23, tzinfo=timezone.utc)
 WS = WorkspaceTarget(path="/r/home/circles/catkin_ws", user="circles")
 
 

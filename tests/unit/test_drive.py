@@ -45,7 +45,7 @@ def test_speed_frames_read_with_cantools_are_the_profiles_samples() -> None:
     frames = [m for m in drive.frames() if m.arbitration_id == drive.SPEED_ID]
     samples = drive.speeds()
     assert len(frames) == len(samples) == 3120  # 780 s, four a second
-    for msg, (t, kmh) in zip(frames, samples, strict=True):
+    for msg, (t, kmh) in zip(frames, samples):
         assert -1e-6 <= since_start(msg.timestamp) - t <= drive.JITTER + 1e-6
         decoded = message.decode(bytes(msg.data), decode_choices=False)
         assert isinstance(decoded, dict)
@@ -96,7 +96,7 @@ def test_every_id_repeats_at_its_period_in_time_order() -> None:
         assert len(own) == round(drive.DURATION / spec.period)
         assert all(len(m.data) == spec.length for m in frames
                    if m.arbitration_id == spec.ident)
-        gaps = [b - a for a, b in itertools.pairwise(own)]
+        gaps = [b - a for a, b in zip(own, own[1:])]
         assert all(abs(gap - spec.period) <= drive.JITTER + 1e-6 for gap in gaps), spec
     assert all(m.channel == "can0" and not m.is_extended_id for m in frames)
 
@@ -155,7 +155,7 @@ def test_it_is_shaped_like_the_recorded_drive() -> None:
         return [(a, b) for a, b in runs if b - a >= 10]
 
     assert len(long(theirs)) == len(long(ours)) == 3
-    for (a, b), (c, d) in zip(long(theirs), long(ours), strict=True):
+    for (a, b), (c, d) in zip(long(theirs), long(ours)):
         assert abs(a - c) <= 3 and abs(b - d) <= 3, ((a, b), (c, d))
     for runs in (theirs, ours):
         assert any(a > 121 and b < 160 for a, b in runs if b - a < 10)  # on the way out

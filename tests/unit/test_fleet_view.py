@@ -4,13 +4,13 @@ status branches of a real clone is tests/integration/test_fleet.py."""
 
 from __future__ import annotations
 
-from datetime import UTC, datetime, timedelta
+from datetime import datetime, timedelta, timezone
 
 import pytest
 
 from reconciler.workflow.fleet import Vehicle, ago, as_json, as_table
 
-NOW = datetime(2026, 11, 20, 15, 0, tzinfo=UTC)
+NOW = datetime(2026, 11, 20, 15, 0, tzinfo=timezone.utc)
 TIP = "c" * 40
 
 

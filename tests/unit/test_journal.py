@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import os
 import threading
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pytest
@@ -19,7 +19,7 @@ from reconciler.errors import ConfigError
 from reconciler.execution.journal import Journal, interrupted_steps, read_events
 from reconciler.layout import Layout
 
-NOW = datetime(2026, 11, 23, 8, 0, tzinfo=UTC)
+NOW = datetime(2026, 11, 23, 8, 0, tzinfo=timezone.utc)
 
 
 def begun(step: str) -> str:

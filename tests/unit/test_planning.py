@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 
 import networkx as nx
 import pytest
@@ -28,7 +28,7 @@ from schemas.record import AppRecord, RepositoryRecord, StateRecord, Stray
 
 A, B, C = "a" * 40, "b" * 40, "c" * 40
 T1, T2 = "1" * 40, "2" * 40
-NOW = datetime(2026, 11, 22, tzinfo=UTC)
+NOW = datetime(2026, 11, 22, tzinfo=timezone.utc)
 
 
 def repo(commit: str | None = A, ref: str | None = "main", url: str = "git://h/apps") -> RepoTarget:

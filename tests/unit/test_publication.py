@@ -4,7 +4,7 @@ counting connections and commits is tests/integration/test_fleet_scale.py."""
 
 from __future__ import annotations
 
-from datetime import UTC, datetime, timedelta, timezone
+from datetime import datetime, timedelta, timezone
 from typing import Any
 
 import pytest
@@ -13,7 +13,7 @@ from reconciler.publication import HISTORY, due, fingerprint, keeps_parent
 from schemas.agent import AgentStatus, Attempt, Publication, Result
 
 REV, NEW = "a" * 40, "b" * 40
-T0 = datetime(2026, 11, 20, 10, 0, tzinfo=UTC)
+T0 = datetime(2026, 11, 20, 10, 0, tzinfo=timezone.utc)
 APP: dict[str, Any] = {"name": "alpha", "generation": "aaaa-1", "status": "running",
                        "running": True}
 HOURS = 3600.0

@@ -8,7 +8,7 @@ script and unit runs in `/etc/libpanda.d/apps/<folder>`, the link to its generat
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pytest
@@ -28,7 +28,7 @@ from schemas.record import StateRecord
 URL, KEY, COMMIT = "git://h/apps", "lab/apps", "a" * 40
 TREE = "1" * 40
 SCRIPTS = {s: "" for s in ("install.sh", "uninstall.sh", "start.sh", "stop.sh")}
-NOW = datetime(2026, 11, 23, tzinfo=UTC)
+NOW = datetime(2026, 11, 23, tzinfo=timezone.utc)
 
 
 class Clock:

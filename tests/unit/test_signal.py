@@ -147,7 +147,7 @@ def cantools_decodes(message: Message, data: bytes, *, scaling: bool) -> int | f
     decoded = message.decode(data, decode_choices=False, scaling=scaling)
     assert isinstance(decoded, dict)
     value = decoded["S"]
-    assert isinstance(value, int | float)
+    assert isinstance(value, (int, float))
     return value
 
 

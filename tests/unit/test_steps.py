@@ -8,7 +8,7 @@ one, a stop that is not written down.
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pytest
@@ -28,7 +28,7 @@ from schemas.record import AppRecord, StateRecord, Stray
 URL, KEY, COMMIT = "git://h/apps", "lab/apps", "a" * 40
 TREES = {"x": "1" * 40, "y": "2" * 40}
 FILES = {s: "" for s in ("install.sh", "uninstall.sh", "start.sh", "stop.sh")}
-NOW = datetime(2026, 11, 22, tzinfo=UTC)
+NOW = datetime(2026, 11, 22, tzinfo=timezone.utc)
 
 
 def machine(tmp_path: Path, record: StateRecord) -> tuple[Context, MemoryScripts]:

@@ -5,7 +5,7 @@ every fault — an undecidable kind included — names file:line:column and what
 from __future__ import annotations
 
 import json
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pytest
@@ -40,7 +40,7 @@ def saved_plan(tmp_path: Path, *, offline: bool = False, **changes: object) -> P
                 args={"key": "apps", "url": "git://h/apps.git", "ref": "main",
                       "commit": "a" * 40})
     plan = sealed(StateRecord(lineage="l-1", serial=3), [], [step],
-                  now=datetime(2024, 1, 1, tzinfo=UTC), lpam_version="0.1.0", summary="")
+                  now=datetime(2024, 1, 1, tzinfo=timezone.utc), lpam_version="0.1.0", summary="")
     if offline:
         plan = plan.model_copy(update={"offline": True})
         plan = plan.model_copy(update={"fingerprint": fingerprint(plan)})
