@@ -72,7 +72,7 @@ class HostileServer:
         while not self._stop.is_set():
             try:
                 conn, _ = self._listener.accept()
-            except TimeoutError:
+            except (socket.timeout, TimeoutError):  # one class since 3.10; not on 3.9
                 continue
             except OSError:
                 return

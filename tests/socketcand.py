@@ -149,7 +149,7 @@ class SocketcandServer:
         while not self._stop.is_set():
             try:
                 conn, _ = self._listener.accept()
-            except TimeoutError:
+            except (socket.timeout, TimeoutError):  # one class since 3.10; not on 3.9
                 continue
             except OSError:
                 return
@@ -196,7 +196,7 @@ class SocketcandServer:
             while not self._stop.is_set():
                 try:
                     data = client.conn.recv(4096)
-                except TimeoutError:
+                except (socket.timeout, TimeoutError):  # one class since 3.10; not on 3.9
                     continue
                 except OSError:
                     return

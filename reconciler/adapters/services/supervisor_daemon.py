@@ -92,7 +92,7 @@ class Client:
             raise
         except (FileNotFoundError, ConnectionError) as exc:
             raise Down(str(exc)) from None
-        except TimeoutError:
+        except (socket.timeout, TimeoutError):  # one class since 3.10; not on 3.9
             raise ServiceError(
                 f"supervisord did not answer {method} within {timeout:g} s on {self.path}",
                 hint="it may be hung; `lpam services shutdown` stops it (its apps too)",
