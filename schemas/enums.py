@@ -3,8 +3,8 @@
 `enum.StrEnum` arrived in Python 3.11; the vehicles run 3.9 (Raspberry Pi OS Bullseye).
 This base gives what lpam relies on from it, identically on every version: members are
 `str` (they compare equal to, and serialise as, their value) and `str()` and f-strings give
-the value. A plain `class X(str, Enum)` would not: its `str()` is "X.MEMBER", and its
-f-string form changed between 3.11 and 3.12.
+the value. A plain `class X(str, Enum)` would not: its `str()` is "X.MEMBER", and from 3.12
+on its f-strings say so too (they follow `__str__`, overridden here).
 """
 
 from __future__ import annotations
@@ -18,5 +18,3 @@ class StrEnum(str, Enum):
     def __str__(self) -> str:
         return str(self.value)
 
-    def __format__(self, spec: str) -> str:
-        return format(str(self.value), spec)
