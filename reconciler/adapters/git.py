@@ -637,6 +637,21 @@ def _checkout(repo: Repo, commit: str) -> None:
             f"commit has a folder ({_printable(exc.args[0]) if exc.args else exc})",
             hint=f"delete {repo.path} (lpam will fetch it again)",
         ) from exc
+    if found is not None:
+        _drop_stale_entries(repo, found)
+
+
+def _drop_stale_entries(repo: Repo, commit: Commit) -> None:
+    """Remove from the index the files `commit` does not have. dulwich 0.24 (the last for
+    Python 3.9) keeps the entry of a file already gone from the working tree (a checkout
+    cut off half-way), which would then read as a local edit at every later checkout."""
+    index = repo.open_index()
+    wanted = {entry.path for entry in iter_tree_contents(repo.object_store, commit.tree)}
+    stale = [path for path in index if path not in wanted]
+    for path in stale:
+        del index[path]
+    if stale:
+        index.write()
 
 
 def _planted_link(repo: Repo, commit: Commit) -> str | None:
