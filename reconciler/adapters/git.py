@@ -698,13 +698,26 @@ def _safe_name(name: bytes) -> bool:
     `..` or empty in any case, NTFS spelling (`git~1`, `.git.`, `.git::$INDEX_ALLOCATION`)
     or HFS+ spelling (with ignorable Unicode). A name that is not UTF-8 cannot be an HFS+
     spelling, and is an ordinary file name on the Pi's file system."""
-    if b"/" in name or not validate_path_element_ntfs(name):
+    if b"/" in name or _ntfs_dotgit(name) or not validate_path_element_ntfs(name):
         return False
     try:
         name.decode("utf-8")
     except UnicodeDecodeError:
         return validate_path_element_default(name)
     return validate_path_element_hfs(name)
+
+
+def _ntfs_dotgit(name: bytes) -> bool:
+    """git's own `is_ntfs_dotgit`: a name NTFS would open as `.git` — `.GIT. `, `git~1`,
+    `.git::$INDEX_ALLOCATION`, or any of them after a backslash. Kept here because
+    dulwich 0.24 (the last for Python 3.9) checks only the plain spellings."""
+    for segment in name.split(b"\\"):
+        for prefix in (b".git", b"git~1"):
+            if segment[: len(prefix)].lower() == prefix:
+                rest = segment[len(prefix):].split(b":", 1)[0]  # an NTFS stream after ':'
+                if not rest.strip(b" ."):
+                    return True
+    return False
 
 
 def _unsafe_path(repo: Repo, commit: Commit) -> str | None:

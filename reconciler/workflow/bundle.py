@@ -29,6 +29,7 @@ from schemas.names import is_hex_commit
 
 if TYPE_CHECKING:
     from dulwich.bundle import Bundle
+    from dulwich.object_store import BaseObjectStore
 
 MANIFEST = b"refs/lpam/manifest"
 FORMAT = 1
@@ -157,7 +158,7 @@ def unpack(machine: Machine, path: Path, url: str, branch: str) -> str:
             raise ConfigError(f"not a git bundle lpam wrote: {exc}", path=path,
                               hint="make one with `lpam bundle create`") from None
         try:
-            bundle.store_objects(pack.object_store)
+            _store(bundle, pack.object_store, path)
             manifest_id = bundle.references.get(Ref(MANIFEST))
         finally:
             _release(bundle)
@@ -202,6 +203,19 @@ def _manifest(raw: bytes, path: Path) -> dict[str, Any]:
                           path=path, hint="make the bundle again with this lpam") from None
     result: dict[str, Any] = data
     return result
+
+
+def _store(bundle: Bundle, store: BaseObjectStore, path: Path) -> None:
+    """Every object of the bundle into `store` as one pack, deltas resolved against the
+    rest of the bundle. Not `Bundle.store_objects`: dulwich 0.24, the last for Python 3.9,
+    skips deltified objects there (dulwich#2312), and 1.x writes each as a loose file."""
+    from dulwich.pack import PackData, PackInflater
+
+    data = bundle.pack_data
+    if not isinstance(data, PackData):
+        raise ConfigError("this git bundle holds no pack lpam can read", path=path,
+                          hint="make one with `lpam bundle create`")
+    store.add_objects([(obj, None) for obj in PackInflater.for_pack_data(data)])
 
 
 def _release(bundle: Bundle) -> None:

@@ -33,6 +33,9 @@ UNSAFE = [
     b"./dot",
     b".git./config",  # NTFS drops trailing dots
     b".git::$INDEX_ALLOCATION/config",  # NTFS alternate data stream
+    b"git~1:stream/config",  # the short name, with a stream
+    b".GiT . /config",  # NTFS drops trailing dots and spaces, whatever their order
+    b"A\\.git/config",  # a backslash separates path parts on Windows
     ".g\u200cit/config".encode(),  # HFS+ ignores zero-width characters
 ]
 
