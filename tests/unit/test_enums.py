@@ -18,6 +18,6 @@ def test_members_print_and_format_as_their_value() -> None:
 def test_members_are_their_strings() -> None:
     assert StepKind("checkout") is StepKind.CHECKOUT
     text: str = "checkout"  # as read from a saved plan
-    assert StepKind.CHECKOUT == text and isinstance(StepKind.CHECKOUT, str)
+    assert text == StepKind.CHECKOUT and isinstance(StepKind.CHECKOUT, str)
     assert json.dumps({"phase": Phase.PREPARE}) == '{"phase": "prepare"}'
     assert {"checkout": 1}[StepKind.CHECKOUT] == 1
