@@ -37,6 +37,16 @@ def version_of(python: str) -> str:
     return done.stdout.strip()
 
 
+def libraries_of(python: str) -> str:
+    """The versions of the heavy libraries that interpreter's virtualenv holds: they differ
+    (dulwich 0.24 is the last for 3.9), and they are part of what is measured."""
+    code = ("from importlib.metadata import version as v; print(', '.join(f'{n} {v(n)}' "
+            "for n in ('dulwich', 'pydantic', 'networkx', 'python-can')))")
+    done = subprocess.run([python, "-c", code], capture_output=True, text=True,
+                          timeout=TIMEOUT, check=True)
+    return done.stdout.strip()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.pythons", description=__doc__)
     parser.add_argument("--python", action="append", help="a virtualenv's interpreter")
@@ -89,6 +99,9 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"## Machine\n\n{machine()}\n\n{args.reps} counted rounds after one warm-up; "
           f"{args.repos} repositories pinned to commits; {platform.machine()}.\n")
+    for python, version in zip(pythons, versions):
+        print(f"- Python {version}: {libraries_of(python)}")
+    print()
     first = pythons[0]
     header = " | ".join(f"Python {v} median s (min) | ratio" for v in versions)
     print(f"| command | {header} |")
