@@ -22,6 +22,7 @@ from typing import Any, Union
 from migrations import (
     agent_status_v1_to_v2,
     desired_state_v0_to_v1,
+    plan_v1_to_v2,
     state_record_v1_to_v2,
     state_record_v2_to_v3,
     state_record_v3_to_v4,
@@ -29,7 +30,7 @@ from migrations import (
 from migrations.step import MigrationError, Step
 from reconciler.errors import ConfigError, VersionError
 
-CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 4, "plan": 1,
+CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 4, "plan": 2,
                            "agent-config": 1, "agent-status": 2}
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
@@ -38,7 +39,7 @@ STEPS: dict[str, dict[str, tuple[str, Step]]] = {
     "state-record": {"1": ("2", state_record_v1_to_v2.upgrade),
                      "2": ("3", state_record_v2_to_v3.upgrade),
                      "3": ("4", state_record_v3_to_v4.upgrade)},
-    "plan": {},
+    "plan": {"1": ("2", plan_v1_to_v2.upgrade)},
     "agent-config": {},
     "agent-status": {"1": ("2", agent_status_v1_to_v2.upgrade)},
 }

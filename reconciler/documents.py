@@ -162,10 +162,28 @@ def parse_json(
         return model.model_validate(data)
     except ValidationError as exc:
         error = exc.errors()[0]
-        field = ".".join(str(p) for p in error["loc"])
-        line, column = where(list(error["loc"]))
-        raise ConfigError(f"invalid {kind} at {field}: {error['msg']}", path=path,
+        loc, message = _tagged(data, list(error["loc"])), str(error["msg"])
+        if error["type"] == "union_tag_invalid":  # pydantic lists the tags as reprs
+            loc, message = [*loc, "kind"], f"unknown kind {error['ctx']['tag']!r}"
+        field = ".".join(str(p) for p in loc)
+        line, column = where(loc)
+        raise ConfigError(f"invalid {kind} at {field}: {message}", path=path,
                           line=line, column=column, hint=hint) from None
+
+
+def _tagged(data: Any, loc: list[str | int]) -> list[str | int]:
+    """`loc` without the tags pydantic inserts for a union chosen by `kind` (a plan's
+    steps: `steps.0.install.app` is `steps.0.app` in the document)."""
+    kept: list[str | int] = []
+    node = data
+    for part in loc:
+        if isinstance(node, dict) and part not in node and node.get("kind") == part:
+            continue
+        kept.append(part)
+        node = node.get(part) if isinstance(node, dict) else (
+            node[part] if isinstance(node, list) and isinstance(part, int)
+            and 0 <= part < len(node) else None)
+    return kept
 
 
 class _JsonPositions:
@@ -192,10 +210,20 @@ class _JsonPositions:
 
 
 def load_plan(path: Path) -> Plan:
-    """A saved plan file (`lpam plan --out`), version-checked and validated."""
+    """A saved plan file (`lpam plan --out`), version-checked, validated and its seal
+    checked — all before any lock is taken: a step of an unknown kind, a missing or
+    mistyped field, or a plan edited after it was sealed is refused here, at its line
+    and column, not when the step runs. (A version-1 plan's seal is checked on its
+    version-1 body by its migration, migrations/plan_v1_to_v2.py.)"""
     from reconciler.loading import read_text
+    from reconciler.planning.plan import fingerprint
 
-    return parse_json(
-        "plan", read_text(path), path, Plan, version_key="format_version",
-        hint="pass a file written by `lpam plan --out FILE`, or use -f for a desired state",
-    )
+    text = read_text(path)
+    hint = "pass a file written by `lpam plan --out FILE`, or use -f for a desired state"
+    plan = parse_json("plan", text, path, Plan, version_key="format_version", hint=hint)
+    if plan.fingerprint != fingerprint(plan):
+        line, column = _JsonPositions(path, text, "format_version")(["fingerprint"])
+        raise ConfigError("the plan's fingerprint does not match its steps (edited or "
+                          "corrupt)", path=path, line=line, column=column,
+                          hint="make a new plan with `lpam plan --out FILE`")
+    return plan

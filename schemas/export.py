@@ -23,7 +23,7 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "desired-state.v1.schema.json": DesiredState,
     "app-catalog.schema.json": RawCatalog,
     "state-record.v4.schema.json": StateRecord,
-    "plan.v1.schema.json": Plan,
+    "plan.v2.schema.json": Plan,
     "agent.v1.schema.json": AgentConfig,
     "agent-status.v2.schema.json": AgentStatus,
 }

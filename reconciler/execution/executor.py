@@ -22,6 +22,7 @@ from concurrent.futures import CancelledError
 
 from reconciler import generations
 from reconciler.errors import Deferred, LpamError, StateWriteError, StopRequested, Terminated
+from reconciler.execution.collection import prune
 from reconciler.execution.context import Context
 from reconciler.execution.journal import Journal
 from reconciler.execution.ports import Gate, Held
@@ -38,8 +39,8 @@ from reconciler.execution.recovery import (
     returns_to,
     unwritable_error,
 )
-from reconciler.execution.steps import check_out, prune, record_checkout
-from schemas.plan import Phase, Plan, Step, StepKind
+from reconciler.execution.steps import check_out, record_checkout
+from schemas.plan import CheckoutStep, Phase, Plan, Step
 from schemas.record import AppRecord
 
 KEEP_GENERATIONS = 3
@@ -144,17 +145,17 @@ class _Failed(Exception):
         self.step, self.error = step, error
 
 
-def _checkouts_from(steps: list[Step], start: int) -> list[Step]:
+def _checkouts_from(steps: list[Step], start: int) -> list[CheckoutStep]:
     """The run of checkouts that begins at `start` (empty if none does)."""
-    batch: list[Step] = []
+    batch: list[CheckoutStep] = []
     for step in steps[start:]:
-        if step.kind is not StepKind.CHECKOUT or step.phase is not Phase.PREPARE:
+        if not isinstance(step, CheckoutStep) or step.phase is not Phase.PREPARE:
             break
         batch.append(step)
     return batch
 
 
-def _checkouts(batch: list[Step], done: int, total: int, ctx: Context,
+def _checkouts(batch: list[CheckoutStep], done: int, total: int, ctx: Context,
                journal: AdvisoryJournal, progress: Callable[[str], None]) -> None:
     """Several repositories checked out at once: each checkout writes only its own
     repository's files, and writing files is most of its time (half of a cold apply of 20
@@ -166,7 +167,7 @@ def _checkouts(batch: list[Step], done: int, total: int, ctx: Context,
 
     lock = threading.Lock()
 
-    def work(step: Step) -> None:
+    def work(step: CheckoutStep) -> None:
         with lock:
             journal.begin(step.id, ctx)
         check_out(step, ctx)

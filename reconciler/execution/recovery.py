@@ -19,14 +19,16 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from reconciler import generations
 from reconciler.errors import HealthError, LpamError, StateWriteError, StepError
 from reconciler.execution.context import Context
 from reconciler.execution.journal import Journal
-from reconciler.execution.steps import RUNNERS
+from reconciler.execution.steps import run
 from reconciler.planning.lifecycle import app_steps, resume_text, target_of
 from reconciler.planning.model import GenerationKey
+from schemas.enums import StrEnum
 from schemas.plan import Phase, Step
 from schemas.record import (
     ApplyResult,
@@ -93,7 +95,7 @@ def journalled(step: Step, label: str, ctx: Context, journal: AdvisoryJournal) -
     """One step's work between its journal lines."""
     journal.begin(label, ctx)
     try:
-        RUNNERS[step.kind](step, ctx)
+        run(step, ctx)
     except LpamError as exc:
         journal.fail(label, ctx, exc.message)
         raise
@@ -148,13 +150,28 @@ def pending(record: StateRecord) -> Rollback | None:
     return record.cutover.rollback if record.cutover is not None else None
 
 
+class Outcome(StrEnum):
+    """How the return to the app that ran before ended: what is decided on (the apply is
+    `rolled back` only when the car is back), never the text said about it."""
+
+    NONE = "none"  # nothing to roll back: the failure was before the cutover, or no step
+    BACK = "back"  # the previous app (or no app) is back
+    FAILED = "failed"  # the rollback failed too
+
+
+@dataclass(frozen=True)
+class RollbackResult:
+    outcome: Outcome
+    said: str = ""  # what happened, to add to the failure's message
+
+
 def roll_back(failed: Step, exc: LpamError, previous: AppRecord | None, ctx: Context,
               journal: AdvisoryJournal, progress: Progress, *, record_result: bool
-              ) -> tuple[str, bool]:
-    """After a failed cutover step, go back to the app that ran before: (what happened, to
-    say; whether the car is back). The rollback is written down before it begins."""
+              ) -> RollbackResult:
+    """After a failed cutover step, go back to the app that ran before. The rollback is
+    written down before it begins."""
     if failed.phase is not Phase.CUTOVER:
-        return "", False
+        return RollbackResult(Outcome.NONE)
     target = None if previous is None else target_of(previous)
     # The car must not be left with no app: the previous one is started again unless an
     # operator had stopped it (after a crash its status may say `installing` though it ran).
@@ -167,7 +184,7 @@ def roll_back(failed: Step, exc: LpamError, previous: AppRecord | None, ctx: Con
     steps = app_steps(record, target, generations.present(ctx.layout), start=start,
                       verify=False)
     if not steps:
-        return "", False
+        return RollbackResult(Outcome.NONE)
     what = f"rolling back to {previous.name}" if previous else "removing the half-installed app"
     try:
         if record_result and pending(ctx.record) is None:
@@ -178,9 +195,10 @@ def roll_back(failed: Step, exc: LpamError, previous: AppRecord | None, ctx: Con
             progress(f"  rollback: {step.id} …")
             journalled(step, f"rollback/{step.id}", ctx, journal)
     except LpamError as again:
-        return f" {what.capitalize()} failed too: {again.message}.", False
-    return (f" Rolled back to {previous.name}." if previous else " Removed the new app again.",
-            True)
+        return RollbackResult(Outcome.FAILED, f" {what.capitalize()} failed too: "
+                              f"{again.message}.")
+    return RollbackResult(Outcome.BACK, f" Rolled back to {previous.name}." if previous
+                          else " Removed the new app again.")
 
 
 def _note_rollback(ctx: Context, previous: AppRecord | None, reason: str, *,
@@ -197,9 +215,10 @@ def fail(step: Step, exc: LpamError, previous: AppRecord | None, ctx: Context,
          journal: AdvisoryJournal, progress: Progress, *, record_result: bool) -> LpamError:
     """Roll back if the cutover had begun, record how the apply ended; the error to raise."""
     attempted = ctx.record.app
-    rolled, back = roll_back(step, exc, previous, ctx, journal, progress,
-                             record_result=record_result)
-    message = f"step {step.id} failed: {exc.message}.{rolled} {where(step.phase, ctx)}"
+    rolled = roll_back(step, exc, previous, ctx, journal, progress,
+                       record_result=record_result)
+    back = rolled.outcome is Outcome.BACK
+    message = f"step {step.id} failed: {exc.message}.{rolled.said} {where(step.phase, ctx)}"
     hint = exc.hint or f"fix the cause and run `{ctx.command}` again; it resumes here"
     try:
         if record_result:

@@ -9,9 +9,9 @@ its ROS repositories at their commits. Each is decided from what the machine has
 
 from __future__ import annotations
 
-from reconciler.planning.lifecycle import step
+from reconciler.planning.lifecycle import step_id
 from reconciler.planning.model import UNKNOWN, AppTarget, DepsObserved, short
-from schemas.plan import Action, Change, Phase, Step, StepKind
+from schemas.plan import Action, AptStep, BuildStep, Change, Phase, PipStep, Step, StepKind
 
 
 def changes(app: AppTarget | None, seen: DepsObserved | None) -> list[Change]:
@@ -58,17 +58,18 @@ def steps(app: AppTarget | None, seen: DepsObserved | None) -> list[Step]:
     """The preparation steps for what `changes` found missing."""
     if app is None or seen is None:
         return []
-    deps, found = app.deps, []
+    deps = app.deps
+    found: list[Step] = []
     if seen.apt_missing:
-        found.append(step(StepKind.APT, Phase.PREPARE, app.name, app=app.name,
-                          packages=list(seen.apt_missing)))
+        found.append(AptStep(id=step_id(StepKind.APT, app.name), phase=Phase.PREPARE,
+                             app=app.name, packages=list(seen.apt_missing)))
     if deps.pip and (seen.pip_unsatisfied or not seen.venv_ready):
-        found.append(step(StepKind.PIP, Phase.PREPARE, app.name, app=app.name,
-                          requirements=list(deps.pip)))
+        found.append(PipStep(id=step_id(StepKind.PIP, app.name), phase=Phase.PREPARE,
+                             app=app.name, requirements=list(deps.pip)))
     if deps.ros and not seen.ros_built and deps.workspace is not None:
-        found.append(step(
-            StepKind.BUILD, Phase.PREPARE, deps.ros_build or UNKNOWN, app=app.name,
-            build=deps.ros_build or UNKNOWN, workspace=deps.workspace.path,
+        found.append(BuildStep(
+            id=step_id(StepKind.BUILD, deps.ros_build or UNKNOWN), phase=Phase.PREPARE,
+            app=app.name, build=deps.ros_build or UNKNOWN, workspace=deps.workspace.path,
             user=deps.workspace.user,
             ros={r.name: r.commit or UNKNOWN for r in deps.ros},
             ros_keys={r.name: r.key for r in deps.ros},

@@ -15,9 +15,9 @@ from typing import TYPE_CHECKING
 
 from reconciler.errors import PlanError
 from reconciler.planning import dependencies
-from reconciler.planning.lifecycle import app_steps, refreshed, step
+from reconciler.planning.lifecycle import app_steps, refreshed, step_id
 from reconciler.planning.model import Observed, Targets
-from schemas.plan import Action, Change, Phase, Step, StepKind
+from schemas.plan import Action, Change, CheckoutStep, Phase, RemoveStep, Step, StepKind
 
 if TYPE_CHECKING:
     import networkx as nx
@@ -33,13 +33,14 @@ def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> li
         change = by_address.get(f"repository.{t.key}")
         if change is not None and change.action is not Action.NOOP:
             steps.append(
-                step(StepKind.CHECKOUT, Phase.PREPARE, t.key,
-                      key=t.key, url=t.url, ref=t.ref, commit=t.commit)
+                CheckoutStep(id=step_id(StepKind.CHECKOUT, t.key), phase=Phase.PREPARE,
+                             key=t.key, url=t.url, ref=t.ref, commit=t.commit)
             )
     for change in changes:
         if change.action is Action.DELETE and change.address.startswith("repository."):
             key = change.address.removeprefix("repository.")
-            steps.append(step(StepKind.REMOVE, Phase.CLEANUP, key, key=key))
+            steps.append(RemoveStep(id=step_id(StepKind.REMOVE, key), phase=Phase.CLEANUP,
+                                    key=key))
     steps += dependencies.steps(targets.app, observed.deps)
     steps += app_steps(refreshed(observed.record, observed.live, observed.stray_live),
                        targets.app, observed.generations, adopt=observed.adopt)

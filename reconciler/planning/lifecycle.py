@@ -32,7 +32,21 @@ from __future__ import annotations
 
 from reconciler.planning.model import UNKNOWN, AppTarget, GenerationKey, HealthTarget
 from reconciler.unit import UnitState
-from schemas.plan import ArgValue, Phase, Step, StepKind
+from schemas.generation import AppGeneration, StrayGeneration
+from schemas.plan import (
+    AdoptStep,
+    ConfigureStep,
+    HealthCheck,
+    InstallStep,
+    Phase,
+    StageStep,
+    StartStep,
+    Step,
+    StepKind,
+    StopStep,
+    UninstallStep,
+    VerifyStep,
+)
 from schemas.record import ACTIVE, AppRecord, StateRecord
 
 _SAME_GENERATION: dict[str, tuple[StepKind, ...]] = {
@@ -45,8 +59,26 @@ _SAME_GENERATION: dict[str, tuple[StepKind, ...]] = {
 }
 
 
-def step(kind: StepKind, phase: Phase, target: str, **args: ArgValue) -> Step:
-    return Step(id=f"{kind.value}:{target}", kind=kind, phase=phase, args=args)
+_ON_GENERATION: dict[StepKind, type[StageStep | InstallStep | ConfigureStep | StartStep]] = {
+    StepKind.STAGE: StageStep, StepKind.INSTALL: InstallStep,
+    StepKind.CONFIGURE: ConfigureStep, StepKind.START: StartStep}
+_LEAVING: dict[StepKind, type[StopStep | UninstallStep]] = {
+    StepKind.STOP: StopStep, StepKind.UNINSTALL: UninstallStep}
+
+
+def step_id(kind: StepKind, target: str) -> str:
+    """A step's id: its kind and what it works on (`install:alpha@1a2b…`)."""
+    return f"{kind.value}:{target}"
+
+
+def on(kind: StepKind, target: str, app: AppGeneration, *, good: bool = False,
+       phase: Phase = Phase.CUTOVER) -> Step:
+    """A step of `kind` on the generation `app`: a stage, install, configure or start
+    (`good`: whether it counts as good once the step ends), or a stop or an uninstall."""
+    ident = step_id(kind, target)
+    if kind in _LEAVING:
+        return _LEAVING[kind](id=ident, phase=phase, app=app)
+    return _ON_GENERATION[kind](id=ident, phase=phase, app=app, good=good)
 
 
 def same_generation(old: AppRecord, new: AppTarget,
@@ -89,16 +121,16 @@ def app_steps(
         return steps + _reconfigure(old, new, target, start=start, verify=verify)
     gen = (new.generation or UNKNOWN) if new is not None else None
     if new is not None and gen is not None and GenerationKey.of(new.name, gen) not in generations:
-        steps.insert(0, step(StepKind.STAGE, Phase.PREPARE, f"{new.name}@{gen}",
-                             **_wanted(new, gen)))
+        steps.insert(0, on(StepKind.STAGE, f"{new.name}@{gen}", generation_of(new, gen),
+                           good=new.proven, phase=Phase.PREPARE))
     if old is not None:
         target = f"{old.name}@{old.generation}"
         if old.status in ACTIVE:
-            steps.append(step(StepKind.STOP, Phase.CUTOVER, target, **_recorded(old)))
-        steps.append(step(StepKind.UNINSTALL, Phase.CUTOVER, target, **_recorded(old)))
+            steps.append(on(StepKind.STOP, target, recorded(old)))
+        steps.append(on(StepKind.UNINSTALL, target, recorded(old)))
     if new is not None and gen is not None:
         target = f"{new.name}@{gen}"
-        steps.append(step(StepKind.INSTALL, Phase.CUTOVER, target, **_wanted(new, gen)))
+        steps.append(on(StepKind.INSTALL, target, generation_of(new, gen), good=new.proven))
         if start:
             steps += _started(new, gen, target, verify=verify)
     return steps
@@ -111,14 +143,17 @@ def _adopted(record: StateRecord, new: AppTarget, adopt: str,
     LPAM's folder), then recorded as installed — running if its unit runs — with no script;
     started only if it was not running. Other strays are stopped and uninstalled first."""
     stray = next(s for s in record.strays if s.name == adopt)
+    assert stray.folder is not None, "observe/adoption.py adopts only an app LPAM installed"
     others = record.model_copy(update={"strays": [s for s in record.strays if s is not stray]})
     steps = _stray_steps(others)
     gen = new.generation or UNKNOWN
     target = f"{new.name}@{gen}"
     if GenerationKey.of(new.name, gen) not in generations:
-        steps.insert(0, step(StepKind.STAGE, Phase.PREPARE, target, **_wanted(new, gen)))
-    steps.append(step(StepKind.ADOPT, Phase.CUTOVER, target, **_wanted(new, gen, good=True),
-                      folder=stray.folder, running="no" if stray.stopped else "yes"))
+        steps.insert(0, on(StepKind.STAGE, target, generation_of(new, gen), good=new.proven,
+                           phase=Phase.PREPARE))
+    steps.append(AdoptStep(id=step_id(StepKind.ADOPT, target), phase=Phase.CUTOVER,
+                           app=generation_of(new, gen), folder=stray.folder,
+                           running=not stray.stopped))
     if stray.stopped and start:
         steps += _started(new, gen, target, verify=verify)
     return steps
@@ -130,10 +165,19 @@ def _started(new: AppTarget, gen: str, target: str, *, verify: bool) -> list[Ste
     run to its end, makes it good."""
     checks = verify and _checks(new.health)
     good = new.proven or (verify and not checks)
-    steps = [step(StepKind.START, Phase.CUTOVER, target, **_wanted(new, gen, good=good))]
+    steps = [on(StepKind.START, target, generation_of(new, gen), good=good)]
     if checks:
-        steps.append(step(StepKind.VERIFY, Phase.CUTOVER, target, **_wanted(new, gen)))
+        steps.append(_verify(new, gen, target))
     return steps
+
+
+def _verify(new: AppTarget, gen: str, target: str) -> VerifyStep:
+    health = new.health
+    check = HealthCheck(settle_seconds=health.settle_seconds,
+                        timeout_seconds=health.timeout_seconds, command=_list(health.command),
+                        can_ids=list(health.can_ids), can_within_seconds=health.can_within)
+    return VerifyStep(id=step_id(StepKind.VERIFY, target), phase=Phase.CUTOVER,
+                      app=generation_of(new, gen), health=check)
 
 
 def _resume(old: AppRecord, new: AppTarget, target: str, *, start: bool,
@@ -146,10 +190,9 @@ def _resume(old: AppRecord, new: AppTarget, target: str, *, start: bool,
         kinds = tuple(k for k in kinds if k is not StepKind.START)
         if old.status in ("starting", "running"):
             kinds = (StepKind.STOP,)
-    steps = [step(k, Phase.CUTOVER, target, **_recorded(old)) for k in kinds]
+    steps = [on(k, target, recorded(old), good=old.good) for k in kinds]
     if start and verify and not old.held and not old.good:
-        steps.append(step(StepKind.VERIFY, Phase.CUTOVER, target,
-                          **_wanted(new, old.generation)))
+        steps.append(_verify(new, old.generation, target))
     return steps
 
 
@@ -159,13 +202,13 @@ def _reconfigure(old: AppRecord, new: AppTarget, target: str, *, start: bool,
     them (a unit lpam wrote is rewritten), start it again. No install script runs and
     nothing is fetched; a script that was cut off is finished first. With new parameters
     the app has to prove itself again."""
-    wanted = _wanted(new, old.generation)
+    wanted = generation_of(new, old.generation)
     steps = []
     if old.status in ACTIVE:
-        steps.append(step(StepKind.STOP, Phase.CUTOVER, target, **_recorded(old)))
-    steps.append(step(StepKind.CONFIGURE, Phase.CUTOVER, target, **wanted))
+        steps.append(on(StepKind.STOP, target, recorded(old)))
+    steps.append(on(StepKind.CONFIGURE, target, wanted, good=new.proven))
     if old.status in ("installing", "uninstalling"):
-        steps.append(step(StepKind.INSTALL, Phase.CUTOVER, target, **wanted))
+        steps.append(on(StepKind.INSTALL, target, wanted, good=new.proven))
     if start:
         steps += _started(new, old.generation, target, verify=verify)
     return steps
@@ -177,58 +220,44 @@ def _checks(health: HealthTarget) -> bool:
 
 
 def _stray_steps(record: StateRecord) -> list[Step]:
-    steps = []
+    steps: list[Step] = []
     for stray in record.strays:
         found = "taken over from LPAM" if stray.folder is not None else "found on disk"
         target = f"{stray.name}@{stray.generation} ({found})"
-        args: dict[str, ArgValue] = {
-            "app": stray.name, "generation": stray.generation, "params": dict(stray.params),
-            "stray": "yes",
-        }
-        if not stray.stopped:
-            steps.append(step(StepKind.STOP, Phase.CUTOVER, target, **args))
-        steps.append(step(StepKind.UNINSTALL, Phase.CUTOVER, target, **args))
+        found_as = StrayGeneration(name=stray.name, generation=stray.generation,
+                                   params=dict(stray.params))
+        kinds = (StepKind.UNINSTALL,) if stray.stopped else (StepKind.STOP, StepKind.UNINSTALL)
+        steps += [_LEAVING[k](id=step_id(k, target), phase=Phase.CUTOVER, stray=found_as)
+                  for k in kinds]
     return steps
 
 
-def _list(value: tuple[str, ...] | None) -> list[str] | None:
+def _list(value: tuple[str, ...] | list[str] | None) -> list[str] | None:
     return None if value is None else list(value)
 
 
-def _recorded(app: AppRecord) -> dict[str, ArgValue]:
-    """The installed app as step arguments: everything a reinstall needs to run it the way
-    it ran (a scriptless app's unit must not come back as a script app). Its generation is
-    the recorded one: an older lpam derived ids differently."""
-    return _wanted(target_of(app), app.generation)
+def recorded(app: AppRecord) -> AppGeneration:
+    """The installed app as a step names it: everything a reinstall needs to run it the
+    way it ran (a scriptless app's unit must not come back as a script app). Its
+    generation is the recorded one: an older lpam derived ids differently."""
+    return AppGeneration(name=app.name, generation=app.generation,
+                         repository=app.repository, commit=app.commit, path=app.path,
+                         tree=app.tree, params=dict(app.params), service=app.service,
+                         command=_list(app.command), launch=app.launch, user=app.user)
 
 
-def _wanted(new: AppTarget, gen: str, *, good: bool | None = None) -> dict[str, ArgValue]:
-    """The app as step arguments; `good`: whether it counts as good once the step ends
-    (default: if it proved good before)."""
-    good = new.proven if good is None else good
-    args: dict[str, ArgValue] = {
-        "app": new.name, "generation": gen, "repository": new.repository,
-        "commit": new.commit, "path": new.path, "tree": new.tree, "params": dict(new.params),
-        "service": new.service, "command": _list(new.command), "launch": new.launch,
-        "user": new.user, "good": "yes" if good else "no",
-    }
-    health = new.health
-    args["health"] = {"settle_seconds": f"{health.settle_seconds:g}",
-                      "timeout_seconds": f"{health.timeout_seconds:g}"}
-    if health.command is not None:
-        args["health_command"] = list(health.command)
-    if health.can_ids:
-        args["health_can"] = {"ids": " ".join(f"0x{i:X}" for i in health.can_ids),
-                              "within_seconds": f"{health.can_within:g}"}
+def generation_of(new: AppTarget, gen: str) -> AppGeneration:
+    """The wanted app as a step names it, with its runtime (environment, ROS build)."""
     deps = new.deps
-    if deps.pip:
-        args["pip"] = list(deps.pip)
-    if deps.ros and deps.workspace is not None:
-        args["ros"] = {r.name: r.commit or UNKNOWN for r in deps.ros}
-        args["build"] = deps.ros_build or UNKNOWN
-        args["ros_workspace"] = deps.workspace.path
-        args["ros_user"] = deps.workspace.user
-    return args
+    ros = bool(deps.ros) and deps.workspace is not None
+    return AppGeneration(
+        name=new.name, generation=gen, repository=new.repository, commit=new.commit,
+        path=new.path, tree=new.tree, params=dict(new.params), service=new.service,
+        command=_list(new.command), launch=new.launch, user=new.user, pip=list(deps.pip),
+        ros={r.name: r.commit or UNKNOWN for r in deps.ros} if ros else {},
+        ros_build=(deps.ros_build or UNKNOWN) if ros else None,
+        ros_workspace=deps.workspace.path if ros and deps.workspace else None,
+        ros_user=deps.workspace.user if ros and deps.workspace else None)
 
 
 def target_of(app: AppRecord) -> AppTarget:

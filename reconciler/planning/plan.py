@@ -7,15 +7,14 @@ edited step does.
 
 from __future__ import annotations
 
-import hashlib
-import json
 from datetime import datetime
 
 from reconciler.errors import PlanError, StalePlanError
 from reconciler.planning.diff import diff
 from reconciler.planning.graph import steps_for
 from reconciler.planning.model import UNKNOWN, Observed, Targets
-from schemas.plan import Action, Change, Plan, Step
+from schemas.generation import AppGeneration, StrayGeneration
+from schemas.plan import Action, BuildStep, Change, CheckoutStep, Plan, Step, seal
 from schemas.record import StateRecord
 
 
@@ -61,17 +60,31 @@ def sealed(record: StateRecord, changes: list[Change], steps: list[Step], *, now
 
 
 def fingerprint(plan: Plan) -> str:
-    body = {
+    return seal({
         "format_version": plan.format_version,
         "offline": plan.offline,
         "lineage": plan.lineage,
         "serial": plan.serial,
         "steps": [s.model_dump(mode="json") for s in plan.steps],
-    }
-    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
+    })
 
 
-_REQUIRED_ARGS = ("commit", "generation", "tree", "path", "repository", "build", "ros")
+_MUST_KNOW = ("repository", "commit", "path", "tree", "generation")
+
+
+def _must_know(step: Step) -> dict[str, object]:
+    """The values of `step` a plan must know to run (named as version 1 named them)."""
+    values: dict[str, object] = {}
+    if isinstance(step, (CheckoutStep, BuildStep)):
+        values = step.model_dump(include={"commit", "build", "ros"})
+    target = getattr(step, "target", None) or getattr(step, "app", None)
+    if isinstance(target, StrayGeneration):
+        values["generation"] = target.generation
+    elif isinstance(target, AppGeneration):
+        values.update({name: getattr(target, name) for name in _MUST_KNOW})
+        if target.ros or target.ros_build is not None:
+            values.update(build=target.ros_build, ros=target.ros)
+    return values
 
 
 def unknown_values(plan: Plan) -> list[str]:
@@ -79,8 +92,8 @@ def unknown_values(plan: Plan) -> list[str]:
     return [
         f"{step.id}.{name}"
         for step in plan.steps
-        for name in _REQUIRED_ARGS
-        if name in step.args and (step.args[name] is None or UNKNOWN in str(step.args[name]))
+        for name, value in _must_know(step).items()
+        if value is None or UNKNOWN in str(value)
     ]
 
 

@@ -171,7 +171,7 @@ def test_plan_json_has_format_version(
 
     lpam.desired(desired(git_daemon.url("apps.git"), "alpha"))
     plan = json.loads(lpam("plan", "--json").stdout)
-    assert plan["format_version"] == 1
+    assert plan["format_version"] == 2
     assert [c["action"] for c in plan["changes"]] == ["create", "create"]
     assert [s["kind"] for s in plan["steps"]] == [
         "checkout", "stage", "install", "start", "verify"]

@@ -23,7 +23,7 @@ from reconciler.planning.model import (
 )
 from reconciler.planning.plan import check_plan, make_plan
 from reconciler.planning.render import render
-from schemas.plan import Action, Phase, Plan, StepKind
+from schemas.plan import Action, AptStep, BuildStep, Phase, Plan, StepKind
 from schemas.record import AppRecord, RepositoryRecord, StateRecord
 
 A, T1 = "a" * 40, "1" * 40
@@ -82,9 +82,9 @@ def test_a_first_install_shows_each_dependency_and_prepares_it_before_the_cutove
     first_cutover = next(i for i, s in enumerate(plan.steps) if s.phase is Phase.CUTOVER)
     for kind in (StepKind.APT, StepKind.PIP, StepKind.BUILD):
         assert kinds.index(kind) < first_cutover
-    build = next(s for s in plan.steps if s.kind is StepKind.BUILD)
-    assert build.args["ros"] == {"can_to_ros": R1}
-    assert build.args["workspace"] == WS.path and build.args["user"] == "circles"
+    build = next(s for s in plan.steps if isinstance(s, BuildStep))
+    assert build.ros == {"can_to_ros": R1}
+    assert build.workspace == WS.path and build.user == "circles"
 
 
 def test_a_new_ros_commit_is_a_rebuild_and_a_new_generation() -> None:
@@ -116,7 +116,8 @@ def test_a_package_removed_behind_lpams_back_is_installed_without_touching_the_a
     seen = replace(READY, apt_missing=("libdiagnostic-updater-dev",))
     plan = plan_for(app, observed(installed(app), seen))
     assert [s.kind for s in plan.steps] == [StepKind.APT]
-    assert plan.steps[0].args["packages"] == ["libdiagnostic-updater-dev"]
+    assert isinstance(plan.steps[0], AptStep)
+    assert plan.steps[0].packages == ["libdiagnostic-updater-dev"]
 
 
 def test_requirements_the_system_satisfies_still_get_the_apps_environment() -> None:

@@ -15,6 +15,7 @@ from migrations import (
     STEPS,
     agent_status_v1_to_v2,
     desired_state_v0_to_v1,
+    plan_v1_to_v2,
     state_record_v1_to_v2,
     state_record_v2_to_v3,
     state_record_v3_to_v4,
@@ -23,8 +24,10 @@ from migrations import (
 from migrations.step import MigrationError
 from reconciler.errors import ConfigError, VersionError
 from reconciler.loading import load
+from reconciler.planning.plan import fingerprint
 from schemas.agent import AgentStatus
 from schemas.desired import DesiredState
+from schemas.plan import Plan
 from schemas.record import StateRecord
 
 FIXTURES = Path(migrations.__file__).parent / "fixtures"
@@ -35,6 +38,7 @@ STEP_FIXTURES = {
     ("state-record", "2"): FIXTURES / "state-record" / "v2_to_v3",
     ("state-record", "3"): FIXTURES / "state-record" / "v3_to_v4",
     ("agent-status", "1"): FIXTURES / "agent-status" / "v1_to_v2",
+    ("plan", "1"): FIXTURES / "plan" / "v1_to_v2",
 }
 PATH = Path("doc.yaml")
 
@@ -49,6 +53,7 @@ RECORD_PAIRS = pairs(STEP_FIXTURES[("state-record", "1")])
 RECORD_V3_PAIRS = pairs(STEP_FIXTURES[("state-record", "2")])
 RECORD_V4_PAIRS = pairs(STEP_FIXTURES[("state-record", "3")])
 AGENT_STATUS_V2_PAIRS = pairs(STEP_FIXTURES[("agent-status", "1")])
+PLAN_V2_PAIRS = pairs(STEP_FIXTURES[("plan", "1")])
 
 
 def read(path: Path) -> Any:
@@ -136,6 +141,50 @@ def test_agent_status_v1_to_v2_matches_fixture_and_validates(before: Path, after
     assert status.passes == AgentStatus.model_validate(read(after)).passes
 
 
+def _plan_v1(path: Path) -> dict[str, Any]:
+    """A saved version-1 plan as the registry sees it (`version` is its `format_version`)."""
+    data = dict(read(path))
+    data["version"] = data.pop("format_version")
+    return data
+
+
+@pytest.mark.parametrize(("before", "after"), PLAN_V2_PAIRS, ids=lambda p: p.name)
+def test_plan_v1_to_v2_matches_fixture_and_its_seal_holds(before: Path, after: Path) -> None:
+    """The `before` plans were written and sealed by the lpam before typed steps."""
+    data = _plan_v1(before)
+    original = copy.deepcopy(data)
+    assert plan_v1_to_v2.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    result = upgrade("plan", data, path=before)
+    result["format_version"] = result.pop("version")
+    plan = Plan.model_validate(result)
+    assert plan.fingerprint == fingerprint(plan)  # sealed again over the typed steps
+
+
+@pytest.mark.parametrize(("edit", "loc"), [
+    (lambda d: d["steps"][0]["args"].update(commit="f" * 40), ("fingerprint",)),
+    (lambda d: d.update(serial=d["serial"] + 1), ("fingerprint",)),
+    (lambda d: d.update(fingerprint="0" * 64), ("fingerprint",)),
+])
+def test_an_edited_v1_plan_is_refused_on_its_v1_seal(edit: Any, loc: tuple[str, ...]) -> None:
+    data = _plan_v1(PLAN_V2_PAIRS[0][0])
+    edit(data)
+    with pytest.raises(MigrationError, match="fingerprint does not match") as info:
+        plan_v1_to_v2.upgrade(data)
+    assert info.value.loc == loc
+
+
+def test_a_sealed_v1_plan_whose_step_cannot_be_carried_is_located() -> None:
+    """A seal is no secret: a plan resealed by hand with a broken step is still refused,
+    at the step."""
+    data = _plan_v1(PLAN_V2_PAIRS[0][0])
+    data["steps"][1]["args"] = "junk"
+    data["fingerprint"] = plan_v1_to_v2._seal(plan_v1_to_v2._body(data, 1, data["steps"]))
+    with pytest.raises(MigrationError, match="step 2") as info:
+        plan_v1_to_v2.upgrade(data)
+    assert info.value.loc == ("steps", 1)
+
+
 def test_an_agent_status_v1_claiming_v2_fields_is_refused() -> None:
     with pytest.raises(ConfigError) as info:
         upgrade("agent-status", {"version": 1, "follows": "x.yaml"}, path=PATH)
@@ -220,8 +269,8 @@ def test_version_that_is_not_a_number(version: object) -> None:
     assert "must be a number" in info.value.message
 
 
-def test_plans_only_know_version_1() -> None:
-    assert upgrade("plan", {"version": 1, "serial": 4}, path=PATH) == {"version": 1, "serial": 4}
+def test_plans_know_versions_1_and_2() -> None:
+    assert upgrade("plan", {"version": 2, "serial": 4}, path=PATH) == {"version": 2, "serial": 4}
     with pytest.raises(VersionError):
         upgrade("plan", {"version": "0.0"}, path=PATH)
 

@@ -23,12 +23,33 @@ from reconciler.planning.model import (
 )
 from reconciler.planning.plan import check_plan, make_plan
 from reconciler.planning.render import render
-from schemas.plan import Action, Phase, Step, StepKind
+from schemas.generation import AppGeneration
+from schemas.plan import (
+    Action,
+    CheckoutStep,
+    Phase,
+    RemoveStep,
+    StartStep,
+    Step,
+    StepKind,
+    StopStep,
+)
 from schemas.record import AppRecord, RepositoryRecord, StateRecord, Stray
 
 A, B, C = "a" * 40, "b" * 40, "c" * 40
 T1, T2 = "1" * 40, "2" * 40
 NOW = datetime(2026, 11, 22, tzinfo=timezone.utc)
+
+
+def _generation(step: Step) -> str | None:
+    app = getattr(step, "app", None)
+    return app.generation if isinstance(app, AppGeneration) else None
+
+
+def start_step(ident: str, phase: Phase) -> Step:
+    app = AppGeneration(name="x", generation="g", repository="r", commit=None, path=None,
+                        tree=None)
+    return StartStep(id=ident, phase=phase, app=app, good=False)
 
 
 def repo(commit: str | None = A, ref: str | None = "main", url: str = "git://h/apps") -> RepoTarget:
@@ -92,7 +113,7 @@ def test_branch_moved_is_an_update_but_unchanged_app_folder_is_not_touched() -> 
 def test_new_app_folder_replaces_generation_old_first() -> None:
     plan = make_plan(Targets((repo(B),), app(tree=T2)), observed(app_rec=installed()), now=NOW,
                      lpam_version="t")
-    kinds = [(s.kind, s.args.get("generation")) for s in plan.steps]
+    kinds = [(s.kind, _generation(s)) for s in plan.steps]
     old, new = installed().generation, generation_id(T2, {})
     assert kinds == [
         (StepKind.CHECKOUT, None), (StepKind.STAGE, new), (StepKind.STOP, old),
@@ -139,9 +160,10 @@ def test_local_edits_warned_on_update() -> None:
 
 def test_prepare_steps_precede_cutover_whatever_the_input_order() -> None:
     steps = [
-        Step(id="start:x", kind=StepKind.START, phase=Phase.CUTOVER, args={}),
-        Step(id="remove:r", kind=StepKind.REMOVE, phase=Phase.CLEANUP, args={}),
-        Step(id="checkout:r2", kind=StepKind.CHECKOUT, phase=Phase.PREPARE, args={}),
+        start_step("start:x", Phase.CUTOVER),
+        RemoveStep(id="remove:r", phase=Phase.CLEANUP, key="r"),
+        CheckoutStep(id="checkout:r2", phase=Phase.PREPARE, key="r2", url="u", ref=None,
+                     commit=None),
     ]
     assert [s.id for s in order(steps)] == ["checkout:r2", "start:x", "remove:r"]
 
@@ -151,17 +173,16 @@ def test_steps_without_needs_are_ordered_as_the_graph_orders_them(phases: list[P
     """`order` skips networkx when no step has `needs`; it must put them where the graph of
     the rules (taken once a step has needs) would. The extra last cleanup step needs the
     first one, which the rules imply anyway, so it only forces the graph."""
-    steps = [Step(id=f"s{i}", kind=StepKind.START, phase=p, args={})
-             for i, p in enumerate(phases)]
-    forcing = Step(id="last", kind=StepKind.REMOVE, phase=Phase.CLEANUP, args={},
-                   needs=[steps[0].id] if steps else [])
+    steps: list[Step] = [start_step(f"s{i}", p) for i, p in enumerate(phases)]
+    forcing = RemoveStep(id="last", phase=Phase.CLEANUP, key="r",
+                         needs=[steps[0].id] if steps else [])
     by_graph = [s.id for s in order([*steps, forcing])]
     assert by_graph[-1] == "last"
     assert [s.id for s in order(steps)] == by_graph[:-1]
 
 
 def test_cycle_is_an_error_naming_it() -> None:
-    steps = {i: Step(id=i, kind=StepKind.START, phase=Phase.CUTOVER, args={}) for i in "ab"}
+    steps: dict[str, Step] = {i: start_step(i, Phase.CUTOVER) for i in "ab"}
     graph = nx.DiGraph([("a", "b"), ("b", "a")])
     with pytest.raises(PlanError, match=r"cycle: .*a.*b"):
         sort_graph(graph, steps, {"a": 0, "b": 1})
@@ -249,7 +270,9 @@ def test_strays_found_on_disk_are_stopped_and_uninstalled_before_any_install() -
     stray = f"x@{installed('x').generation} (found on disk)"
     assert ids.index(f"stop:{stray}") < ids.index(f"uninstall:{stray}") < ids.index(
         f"install:y@{generation_id(T2, {})}")
-    assert plan.steps[ids.index(f"stop:{stray}")].args["params"] == {"K": "1"}
+    stop = plan.steps[ids.index(f"stop:{stray}")]
+    assert isinstance(stop, StopStep) and stop.stray is not None
+    assert stop.stray.params == {"K": "1"}
     change = next(c for c in plan.changes if c.address.startswith("stray."))
     assert change.action is Action.DELETE and "no state record" in change.reason
     # the same app wanted again: it is still cycled through its own scripts first

@@ -19,11 +19,11 @@ from reconciler.errors import HealthError, StepError
 from reconciler.execution.context import Context
 from reconciler.execution.steps import RUNNERS
 from reconciler.layout import Layout
-from reconciler.planning.lifecycle import step
 from reconciler.planning.model import generation_id
 from reconciler.state import read_record
-from schemas.plan import ArgValue, Phase, StepKind
+from schemas.plan import Phase, StepKind
 from schemas.record import StateRecord
+from tests.steps_v1 import ArgValue, step
 
 URL, KEY, COMMIT = "git://h/apps", "lab/apps", "a" * 40
 TREE = "1" * 40

@@ -19,11 +19,11 @@ from reconciler.errors import StepError
 from reconciler.execution.context import Context
 from reconciler.execution.steps import RUNNERS
 from reconciler.layout import Layout
-from reconciler.planning.lifecycle import step
 from reconciler.planning.model import generation_id
 from reconciler.state import read_record, write_record
 from schemas.plan import Phase, StepKind
 from schemas.record import AppRecord, StateRecord, Stray
+from tests.steps_v1 import step
 
 URL, KEY, COMMIT = "git://h/apps", "lab/apps", "a" * 40
 TREES = {"x": "1" * 40, "y": "2" * 40}

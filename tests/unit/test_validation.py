@@ -14,7 +14,7 @@ from reconciler.cli import VALIDATE_KINDS
 from reconciler.errors import ConfigError
 from reconciler.planning.plan import fingerprint, sealed
 from reconciler.validation import Kind, validate
-from schemas.plan import Phase, Step, StepKind
+from schemas.plan import CheckoutStep, Phase
 from schemas.record import StateRecord
 
 TOP = Path(__file__).resolve().parents[2]
@@ -36,9 +36,8 @@ def write(tmp_path: Path, name: str, text: str) -> Path:
 def saved_plan(tmp_path: Path, *, offline: bool = False, **changes: object) -> Path:
     """A sealed plan of one checkout step, as `lpam plan -o` writes it (or `lpam plan
     --offline --json`); `changes` edit the JSON afterwards (an edited plan)."""
-    step = Step(id="checkout:apps", kind=StepKind.CHECKOUT, phase=Phase.PREPARE,
-                args={"key": "apps", "url": "git://h/apps.git", "ref": "main",
-                      "commit": "a" * 40})
+    step = CheckoutStep(id="checkout:apps", phase=Phase.PREPARE, key="apps",
+                        url="git://h/apps.git", ref="main", commit="a" * 40)
     plan = sealed(StateRecord(lineage="l-1", serial=3), [], [step],
                   now=datetime(2024, 1, 1, tzinfo=timezone.utc), lpam_version="0.1.0", summary="")
     if offline:
@@ -75,7 +74,7 @@ def test_the_kind_is_read_from_the_document(tmp_path: Path, text: str, said: str
 
 def test_a_saved_plan_is_recognised_and_read_as_apply_reads_it(tmp_path: Path) -> None:
     done = validate(saved_plan(tmp_path))
-    assert "is a saved plan (format 1, lpam 0.1.0" in done
+    assert "is a saved plan (format 2, lpam 0.1.0" in done
     assert "1 steps" in done and "serial 3" in done
 
 

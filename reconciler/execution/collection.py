@@ -1,0 +1,51 @@
+"""Garbage collection after an apply succeeds (not a step: nothing of it is planned or
+journalled): generations, LPAM's offered folders, environments and ROS builds no kept
+generation needs, and the exit codes no record awaits."""
+
+from __future__ import annotations
+
+import getpass
+from pathlib import Path
+
+from reconciler import generations
+from reconciler.execution.context import Context
+from reconciler.legacy import appdir
+from reconciler.planning.model import GenerationKey
+
+
+def prune(ctx: Context, *, keep: int = 3) -> None:
+    """After a successful apply, generations still installed are kept (the app's and any
+    stray's: their scripts are what stops them), and the last `keep` good ones of the
+    history (what `lpam rollback` returns to); and only the exit codes still awaited."""
+    record = ctx.record
+    kept = {GenerationKey.of(s.name, s.generation) for s in record.strays}
+    good = [GenerationKey.of(h.app, h.generation) for h in record.history
+            if h.result == "applied"]
+    kept.update(list(dict.fromkeys(reversed(good)))[:keep])
+    if record.app is not None:
+        kept.add(GenerationKey.of(record.app.name, record.app.generation))
+    generations.prune(ctx.layout, kept)
+    appdir.keep_offered(ctx.layout, ctx.store, record)
+    _collect_dependencies(ctx)
+    pending = {f"{r}.exit" for r in [record.app.run if record.app else None,
+                                      *(s.run for s in record.strays)] if r}
+    if ctx.layout.runs.is_dir():
+        for result in ctx.layout.runs.iterdir():
+            if result.name not in pending:
+                result.unlink(missing_ok=True)
+
+
+def _collect_dependencies(ctx: Context) -> None:
+    """Virtual environments and ROS builds no kept generation runs with are removed; the
+    ones kept are what `lpam rollback` returns to without a rebuild."""
+    if ctx.deps is None:
+        return
+    kept = generations.installed_on_disk(ctx.layout)
+    ctx.deps.envs.collect({Path(g.venv) for g in kept if g.venv is not None})
+    builds: dict[tuple[str, str], set[str]] = {}
+    for g in kept:
+        if g.ros_workspace is not None and g.ros_build is not None:
+            owner = (g.ros_workspace, g.ros_user or getpass.getuser())
+            builds.setdefault(owner, set()).add(g.ros_build)
+    for (path, user), keys in builds.items():
+        ctx.deps.workspace(Path(path), user).collect(keys)

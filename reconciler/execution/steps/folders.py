@@ -1,0 +1,105 @@
+"""What the app steps share: the generation a step names, as staged on disk (its folder,
+its metadata, the place where its scripts run), and the app the record shows installed."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+from reconciler import generations
+from reconciler.errors import StepError
+from reconciler.execution.context import Context
+from reconciler.execution.supervision import runtime
+from reconciler.generations import Generation
+from reconciler.legacy import appdir
+from reconciler.planning.model import app_folder
+from reconciler.unit import unit_name
+from schemas.generation import AppGeneration
+from schemas.record import AppRecord
+
+
+def known(value: str | None, step: str, name: str) -> str:
+    """A value only a plan made offline lacks (such a plan is refused before it runs)."""
+    if value is None:
+        raise StepError(f"step {step} lacks {name}; the plan is malformed",
+                        hint="make a new plan with `lpam plan --out FILE`")
+    return value
+
+
+def staged(app: AppGeneration, step: str, ctx: Context) -> Generation:
+    """The generation a step names, as it is staged (its unit is lpam's for a scriptless
+    app, named after its folder)."""
+    path = known(app.path, step, "path")
+    service = unit_name(app_folder(path)) if app.scriptless else app.service
+    return Generation(
+        app=app.name, generation=app.generation, repository=app.repository,
+        commit=known(app.commit, step, "commit"), path=path,
+        tree=known(app.tree, step, "tree"), params=dict(app.params),
+        command=None if app.command is None else tuple(app.command), launch=app.launch,
+        service=service,
+        venv=str(ctx.dependencies().envs.location(tuple(app.pip))) if app.pip else None,
+        ros=dict(app.ros), ros_build=app.ros_build, ros_workspace=app.ros_workspace,
+        ros_user=app.ros_user,
+    )
+
+
+def as_record(gen: Generation, user: str | None) -> AppRecord:
+    """The generation as the installed app it becomes (status: installed)."""
+    return AppRecord(name=gen.app, repository=gen.repository, commit=gen.commit,
+                     tree=gen.tree, path=gen.path, params=gen.params,
+                     generation=gen.generation, service=gen.service,
+                     command=None if gen.command is None else list(gen.command),
+                     launch=gen.launch, user=user)
+
+
+def on_disk(ctx: Context, app: str, generation: str, fallback: Generation) -> Generation:
+    """The generation as its metadata file says, or `fallback` without one."""
+    meta = generations.read_meta(ctx.layout.generation_meta(app, generation))
+    return meta if meta is not None else fallback
+
+
+def with_runtime(ctx: Context, gen: Generation) -> Generation:
+    """`gen` as a step wants it, with the runtime its staging recorded when the step does
+    not say (a rollback's steps come from the state record, which keeps no environment or
+    ROS build: the generation's metadata does, so it returns to the build that worked)."""
+    meta = generations.read_meta(ctx.layout.generation_meta(gen.app, gen.generation))
+    if meta is None or gen.venv is not None or gen.ros_build is not None:
+        return gen
+    return replace(gen, venv=meta.venv, ros=meta.ros, ros_build=meta.ros_build,
+                   ros_workspace=meta.ros_workspace, ros_user=meta.ros_user)
+
+
+def of_record(ctx: Context, app: AppRecord) -> Generation:
+    """The installed app's generation: its metadata, else what the record says."""
+    fallback = Generation(app=app.name, generation=app.generation, repository=app.repository,
+                          commit=app.commit, path=app.path, tree=app.tree, params=app.params,
+                          command=None if app.command is None else tuple(app.command),
+                          launch=app.launch, service=app.service)
+    return on_disk(ctx, app.name, app.generation, fallback)
+
+
+def place(ctx: Context, gen: Generation) -> Path:
+    """The generation's folder (restored from git first if it went missing), reachable at
+    `/etc/libpanda.d/apps/<folder>`: that path, where the field's scripts expect it."""
+    folder = generations.ensure(ctx.layout, ctx.store, gen)
+    return appdir.point(ctx.layout, gen.folder, folder)
+
+
+def run_script(ctx: Context, gen: Generation, script: str, params: dict[str, str],
+               run: str) -> None:
+    """Run one script of `gen` in its place, in its runtime environment."""
+    where = place(ctx, gen)
+    required = gen.scripts is not None and script in gen.scripts
+    ctx.scripts.run(gen.app, where, script, {**params, **runtime(ctx, gen).environment},
+                    run=run, required=required)
+
+
+def installed(app: AppGeneration, step: str, ctx: Context) -> AppRecord:
+    """The app the record shows installed, which must be the one the step names."""
+    current = ctx.record.app
+    if current is None or (current.name, current.generation) != (app.name, app.generation):
+        raise StepError(
+            f"step {step}: the state record no longer shows this app installed",
+            hint="run `lpam plan` again; the machine changed during the apply",
+        )
+    return current
