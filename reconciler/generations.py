@@ -1,6 +1,7 @@
 """Generations: immutable copies of app folders under `var/lib/lpam/generations/<app>/<id>`.
 
-Each generation has a small metadata file beside it (`<id>.json`): the app, where it was
+Each generation has a small metadata file beside it (`<id>.json`, a versioned document:
+schemas/generation.py GenerationMeta): the app, where it was
 copied from (repository, commit, folder, tree) and which lifecycle scripts it had. That
 file is what lets lpam act safely without its state record — a lost record still leaves
 enough on disk to stop and uninstall the app with its *own* scripts and parameters — and
@@ -27,6 +28,7 @@ from reconciler.errors import ConfigError, StepError
 from reconciler.layout import Layout, is_generation_id, slug
 from reconciler.planning.model import GenerationKey, app_folder
 from reconciler.reading import KIB, read_bounded
+from schemas.generation import GenerationMeta
 
 if TYPE_CHECKING:
     from reconciler.execution.ports import Store
@@ -72,15 +74,15 @@ def stage(layout: Layout, store: Store, gen: Generation) -> Path:
         _export(layout, store, gen, dest)
     meta = layout.generation_meta(gen.app, gen.generation)
     if read_meta(meta) is None:
-        scripts = tuple(s for s in SCRIPTS if os.path.lexists(dest / s))
-        body = {"app": gen.app, "generation": gen.generation, "repository": gen.repository,
-                "commit": gen.commit, "path": gen.path, "tree": gen.tree,
-                "params": gen.params, "scripts": list(scripts),
-                "command": None if gen.command is None else list(gen.command),
-                "launch": gen.launch, "service": gen.service, "venv": gen.venv,
-                "ros": gen.ros, "ros_build": gen.ros_build,
-                "ros_workspace": gen.ros_workspace, "ros_user": gen.ros_user}
-        write_atomic(meta, json.dumps(body, indent=2, sort_keys=True) + "\n")
+        scripts = [s for s in SCRIPTS if os.path.lexists(dest / s)]
+        body = GenerationMeta(
+            name=gen.app, generation=gen.generation, repository=gen.repository,
+            commit=gen.commit, path=gen.path, tree=gen.tree, params=gen.params,
+            scripts=scripts, command=None if gen.command is None else list(gen.command),
+            launch=gen.launch, service=gen.service, venv=gen.venv, ros=gen.ros,
+            ros_build=gen.ros_build, ros_workspace=gen.ros_workspace, ros_user=gen.ros_user)
+        write_atomic(meta, json.dumps(body.model_dump(mode="json"), indent=2,
+                                      sort_keys=True) + "\n")
     return dest
 
 
@@ -112,36 +114,25 @@ def _export(layout: Layout, store: Store, gen: Generation, dest: Path) -> None:
 
 
 def read_meta(path: Path) -> Generation | None:
-    """A generation's metadata, or None when it is missing or unreadable (then lpam falls
-    back to what the state record says)."""
+    """A generation's metadata (of any version: an unversioned file is version 0), or None
+    when it is missing, unreadable or invalid (then lpam falls back to what the state
+    record says)."""
+    from migrations import upgrade
+
     try:
         data = json.loads(read_bounded(path, limit=64 * KIB, follow_symlinks=False))
-        params = data.get("params") or {}
-        scripts = data.get("scripts")
-        command = data.get("command")
-        launch, service = data.get("launch"), data.get("service")
-        ros = data.get("ros") or {}
-        return Generation(
-            app=str(data["app"]), generation=str(data["generation"]),
-            repository=str(data.get("repository", "")), commit=str(data.get("commit", "")),
-            path=str(data.get("path", "")), tree=str(data.get("tree", "")),
-            params={str(k): str(v) for k, v in params.items()},
-            scripts=None if scripts is None else tuple(str(s) for s in scripts),
-            command=None if command is None else tuple(str(a) for a in command),
-            launch=None if launch is None else str(launch),
-            service=None if service is None else str(service),
-            venv=_text(data.get("venv")), ros={str(k): str(v) for k, v in ros.items()},
-            ros_build=_text(data.get("ros_build")),
-            ros_workspace=_text(data.get("ros_workspace")),
-            ros_user=_text(data.get("ros_user")),
-        )
-    except (FileNotFoundError, ConfigError, ValueError, KeyError, TypeError, AttributeError,
-            RecursionError):
+        if isinstance(data, dict) and "version" not in data:
+            data["version"] = 0
+        meta = GenerationMeta.model_validate(upgrade("generation-meta", data, path=path))
+    except (FileNotFoundError, ConfigError, ValueError, RecursionError):
         return None
-
-
-def _text(value: object) -> str | None:
-    return None if value is None else str(value)
+    return Generation(
+        app=meta.name, generation=meta.generation, repository=meta.repository,
+        commit=meta.commit, path=meta.path, tree=meta.tree, params=dict(meta.params),
+        scripts=None if meta.scripts is None else tuple(meta.scripts),
+        command=None if meta.command is None else tuple(meta.command), launch=meta.launch,
+        service=meta.service, venv=meta.venv, ros=dict(meta.ros), ros_build=meta.ros_build,
+        ros_workspace=meta.ros_workspace, ros_user=meta.ros_user)
 
 
 def on_disk(layout: Layout) -> Iterator[tuple[str, str]]:

@@ -16,6 +16,7 @@ from pydantic import BaseModel
 from schemas.agent import AgentConfig, AgentStatus
 from schemas.catalog import RawCatalog
 from schemas.desired import DesiredState
+from schemas.generation import GenerationMeta
 from schemas.plan import Plan
 from schemas.record import StateRecord
 
@@ -24,6 +25,7 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "app-catalog.schema.json": RawCatalog,
     "state-record.v4.schema.json": StateRecord,
     "plan.v2.schema.json": Plan,
+    "generation-meta.v1.schema.json": GenerationMeta,
     "agent.v1.schema.json": AgentConfig,
     "agent-status.v2.schema.json": AgentStatus,
 }

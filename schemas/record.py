@@ -24,6 +24,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from schemas.generation import GenerationFields
+
 CURRENT_VERSION = 4
 
 AppStatus = Literal["installing", "installed", "starting", "running", "stopping", "uninstalling"]
@@ -48,30 +50,19 @@ class RepositoryRecord(BaseModel):
         "no successful apply has used it yet): a checkout that differs is not what runs")
 
 
-class AppRecord(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class AppRecord(GenerationFields):
+    """The installed app: the generation (schemas/generation.py) and where its lifecycle
+    stands."""
 
-    name: str
-    repository: str = Field(description="key of the repository the app came from")
     commit: str = Field(description="commit the installed generation was copied from")
     tree: str = Field(description="git tree hash of the app folder at that commit")
     path: str = Field(description="folder of the app inside its repository")
-    params: dict[str, str] = Field(default_factory=dict)
-    generation: str = Field(description="directory name under generations/<app>/")
     status: AppStatus = "installed"
     run: str | None = Field(
         default=None,
         description="id of the script run under way when the status was written; its exit "
         "code lands in var/lib/lpam/runs/<run>.exit when it ends, even if lpam died",
     )
-    service: str | None = Field(
-        default=None, description="the unit whose state says whether the app runs: the "
-        "one lpam wrote (scriptless app) or the one named in the app's `service` file")
-    command: list[str] | None = Field(
-        default=None, description="scriptless app: the program lpam runs as its unit")
-    launch: str | None = Field(
-        default=None, description="scriptless app: the roslaunch file lpam runs as its unit")
-    user: str | None = Field(default=None, description="user a scriptless app runs as")
     held: bool = Field(
         default=False, description="stopped by an operator (`lpam stop`): not started again "
         "until `lpam start` or a change of the desired state")
@@ -85,9 +76,6 @@ class AppRecord(BaseModel):
     def running(self) -> bool:
         return self.status == "running"
 
-    @property
-    def scriptless(self) -> bool:
-        return self.command is not None or self.launch is not None
 
 
 class Stray(BaseModel):

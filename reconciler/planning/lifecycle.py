@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from reconciler.planning.model import UNKNOWN, AppTarget, GenerationKey, HealthTarget
 from reconciler.unit import UnitState
-from schemas.generation import AppGeneration, StrayGeneration
+from schemas.generation import AppGeneration, GenerationFields, StrayGeneration
 from schemas.plan import (
     AdoptStep,
     ConfigureStep,
@@ -240,10 +240,8 @@ def recorded(app: AppRecord) -> AppGeneration:
     """The installed app as a step names it: everything a reinstall needs to run it the
     way it ran (a scriptless app's unit must not come back as a script app). Its
     generation is the recorded one: an older lpam derived ids differently."""
-    return AppGeneration(name=app.name, generation=app.generation,
-                         repository=app.repository, commit=app.commit, path=app.path,
-                         tree=app.tree, params=dict(app.params), service=app.service,
-                         command=_list(app.command), launch=app.launch, user=app.user)
+    shared = {*GenerationFields.model_fields, "commit", "path", "tree"}
+    return AppGeneration(**app.model_dump(include=shared))
 
 
 def generation_of(new: AppTarget, gen: str) -> AppGeneration:

@@ -15,6 +15,7 @@ from migrations import (
     STEPS,
     agent_status_v1_to_v2,
     desired_state_v0_to_v1,
+    generation_meta_v0_to_v1,
     plan_v1_to_v2,
     state_record_v1_to_v2,
     state_record_v2_to_v3,
@@ -27,6 +28,7 @@ from reconciler.loading import load
 from reconciler.planning.plan import fingerprint
 from schemas.agent import AgentStatus
 from schemas.desired import DesiredState
+from schemas.generation import GenerationMeta
 from schemas.plan import Plan
 from schemas.record import StateRecord
 
@@ -39,6 +41,7 @@ STEP_FIXTURES = {
     ("state-record", "3"): FIXTURES / "state-record" / "v3_to_v4",
     ("agent-status", "1"): FIXTURES / "agent-status" / "v1_to_v2",
     ("plan", "1"): FIXTURES / "plan" / "v1_to_v2",
+    ("generation-meta", "0"): FIXTURES / "generation-meta" / "v0_to_v1",
 }
 PATH = Path("doc.yaml")
 
@@ -54,6 +57,7 @@ RECORD_V3_PAIRS = pairs(STEP_FIXTURES[("state-record", "2")])
 RECORD_V4_PAIRS = pairs(STEP_FIXTURES[("state-record", "3")])
 AGENT_STATUS_V2_PAIRS = pairs(STEP_FIXTURES[("agent-status", "1")])
 PLAN_V2_PAIRS = pairs(STEP_FIXTURES[("plan", "1")])
+META_V1_PAIRS = pairs(STEP_FIXTURES[("generation-meta", "0")])
 
 
 def read(path: Path) -> Any:
@@ -183,6 +187,18 @@ def test_a_sealed_v1_plan_whose_step_cannot_be_carried_is_located() -> None:
     with pytest.raises(MigrationError, match="step 2") as info:
         plan_v1_to_v2.upgrade(data)
     assert info.value.loc == ("steps", 1)
+
+
+@pytest.mark.parametrize(("before", "after"), META_V1_PAIRS, ids=lambda p: p.name)
+def test_generation_meta_v0_to_v1_matches_fixture_and_validates(before: Path,
+                                                                after: Path) -> None:
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert generation_meta_v0_to_v1.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    meta = GenerationMeta.model_validate(
+        upgrade("generation-meta", {**data, "version": 0}, path=before))
+    assert (meta.name, meta.generation) == (data["app"], data["generation"])
 
 
 def test_an_agent_status_v1_claiming_v2_fields_is_refused() -> None:
