@@ -96,26 +96,8 @@ def upgrade(
             f"the {label} has no `version`", path=path, line=1, column=1,
             hint=_MISSING_HINTS[kind],
         )
-    version = _normalise(doc["version"])
-    line, column = where(("version",))
+    version = _known_version(kind, doc["version"], path, where(("version",)))
     current = str(CURRENT[kind])
-    if version is None:
-        raise VersionError(
-            f"`version` must be a number, not {doc['version']!r}",
-            path=path, line=line, column=column, hint=f"write `version: {current}`",
-        )
-    if version != current and version not in STEPS[kind]:
-        if _newer(version, CURRENT[kind]):
-            raise VersionError(
-                f"written by a newer lpam: document version {version}, this lpam reads up "
-                f"to {current}",
-                path=path, line=line, column=column, hint="upgrade lpam",
-            )
-        known = ", ".join([*STEPS[kind], current])
-        raise VersionError(
-            f"unknown {label} version {version}; this lpam reads version {known}",
-            path=path, line=line, column=column, hint=f"write `version: {current}`",
-        )
     while version != current:
         version, step = STEPS[kind][version]
         try:
@@ -127,6 +109,33 @@ def upgrade(
             ) from None
     doc["version"] = CURRENT[kind]
     return doc
+
+
+def _known_version(kind: str, value: Any, path: Path,
+                   at: tuple[int | None, int | None]) -> str:
+    """The document's version as text, if this lpam reads it; a newer one is refused by
+    name (the operator must upgrade lpam, not lose fields silently)."""
+    version = _normalise(value)
+    line, column = at
+    current = str(CURRENT[kind])
+    if version is None:
+        raise VersionError(
+            f"`version` must be a number, not {value!r}",
+            path=path, line=line, column=column, hint=f"write `version: {current}`",
+        )
+    if version != current and version not in STEPS[kind]:
+        if _newer(version, CURRENT[kind]):
+            raise VersionError(
+                f"written by a newer lpam: document version {version}, this lpam reads up "
+                f"to {current}",
+                path=path, line=line, column=column, hint="upgrade lpam",
+            )
+        known = ", ".join([*STEPS[kind], current])
+        raise VersionError(
+            f"unknown {_LABELS[kind]} version {version}; this lpam reads version {known}",
+            path=path, line=line, column=column, hint=f"write `version: {current}`",
+        )
+    return version
 
 
 def _normalise(value: Any) -> str | None:
