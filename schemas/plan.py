@@ -222,8 +222,6 @@ Step = Annotated[
 """One unit of work of an apply, by its `kind`: a step of an unknown kind, a missing or
 a mistyped field is refused when the plan is loaded."""
 
-AppStep = Union[StageStep, InstallStep, ConfigureStep, StartStep, VerifyStep, AdoptStep]
-
 
 def seal(body: dict[str, Any]) -> str:
     """The fingerprint of a plan's body (planning/plan.py says what it covers)."""
