@@ -18,6 +18,16 @@ from reconciler.unit import Unit, UnitState
 if TYPE_CHECKING:
     from reconciler.vehicle.policy import GateState
 
+DEFAULT_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
+"""The PATH a script, a build or a unit runs with when lpam's own has none: part of the
+contract between the steps that describe a program and the adapters that run it."""
+
+SOURCE_THEN_EXEC = 'source "$1" || exit 1; shift; exec "$@"'
+"""Runs a command inside a ROS environment (a setup.bash), from an argument list: the setup
+file and the command are the shell's arguments, never part of its code. Builds use it with
+the underlay (adapters/catkin.py), and launch units (execution/supervision.py) with their
+build's devel space."""
+
 
 class Store(Protocol):
     """The repository store: one checkout per app repository, objects fetched from remotes.
