@@ -25,6 +25,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from reconciler.adapters.can.dbc import speed_definition
 from reconciler.errors import ConfigError, Deferred, VehicleSourceError
 from reconciler.layout import Layout
 from reconciler.vehicle.motion import Motion, Tracker
@@ -123,7 +124,7 @@ class _Watch:
         self._short = 0
         self.description = _describe(vehicle)
         try:
-            self._signal = vehicle.speed.definition(gate.base_dir)
+            self._signal = speed_definition(vehicle.speed, gate.base_dir)
             self._source = open_vehicle_source(gate.vehicle, layout=gate.layout,
                                                base_dir=gate.base_dir,
                                                ids=[self._signal.frame_id])
