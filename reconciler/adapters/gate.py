@@ -138,7 +138,11 @@ class _Watch:
         if self._source is None:
             return
         gates, vehicle = self._gate.gates, self._gate.vehicle
-        self._feed(self._source.backlog(gates.stationary_seconds + vehicle.stale_seconds))
+        try:
+            self._feed(self._source.backlog(gates.stationary_seconds + vehicle.stale_seconds))
+        except VehicleSourceError as exc:  # the recording cannot be read: no signal, why
+            self._problem = exc.message
+            return
         if vehicle.source.bus is not None:
             listen = min(FIRST_LISTEN, vehicle.stale_seconds)
             self.listen(self._gate.monotonic() + listen, until_speed=True)
