@@ -10,7 +10,8 @@ phase fails on its own, and never at the running app's expense:
   new one arrives — a broken commit must not restart the car's app every five minutes;
 - `fetch_only`: fetch the source and the commits it pins, record, change nothing (the
   pass at shutdown, so that what WiFi brought at the end of a trip applies at the next
-  start);
+  start); pins that could not be fetched are recorded as such (offline, or failed when
+  the desired state is at fault), never as fetched;
 - a damaged copy in the repository store (the source's or an app repository's) is fetched
   anew, as apply does; with no network to do so the pass is "offline", not failed: the
   revision is not at fault, and the next pass with network tries it again.
@@ -419,15 +420,21 @@ def join_url(base: str, relative: str) -> str:
 def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: str,
                 report: Report) -> Synced:
     """Bring the commits the desired state pins into the store (objects only), so that the
-    next start can apply with no network."""
+    next start can apply with no network. When they cannot be fetched the pass says so, as
+    a whole pass would: offline when git could not reach them (the revision is not at
+    fault, the next pass tries again), failed when the desired state itself is at fault."""
     from reconciler.workflow.planning import plan
 
     try:
         chosen = _desired(machine, config, vehicle, revision)
         plan(machine, chosen.label, chosen.desired, report=report)
+    except GitError as exc:
+        report(Note(f"offline: {exc.message}"))
+        return Synced("offline", revision, "the source was fetched; the commits it pins "
+                      f"were not: {exc.message}", exc.hint)
     except LpamError as exc:
-        return Synced("fetched", revision, f"the source was fetched; its pins not: "
-                      f"{exc.message}")
+        return Synced("failed", revision, "the source was fetched; the commits it pins "
+                      f"were not: {_reason(exc)}", exc.hint)
     return Synced("fetched", revision)
 
 
