@@ -17,8 +17,6 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from reconciler.errors import ConfigError
-
 PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
 
 
@@ -37,39 +35,18 @@ class Vehicle:
 
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
     """(the followed branch's tip, one row per vehicle with a status branch)."""
-    from dulwich.errors import NotGitRepository
-    from dulwich.objects import Commit, Tree
-    from dulwich.refs import Ref
-    from dulwich.repo import Repo
+    from reconciler.adapters.clone import published
 
-    try:
-        repo = Repo(str(repo_path))
-    except NotGitRepository:
-        raise ConfigError("not a clone of the desired-state repository", path=repo_path,
-                          hint="run it in a clone (git clone …; git fetch) or pass --repo") \
-            from None
-    with repo:
-        refs = repo.get_refs()
-        tip_id = refs.get(Ref(f"refs/remotes/origin/{branch}".encode())) or \
-            refs.get(Ref(f"refs/heads/{branch}".encode()))
-        tip = tip_id.decode("ascii") if tip_id else None
-        seen: dict[str, Vehicle] = {}
-        for name, sha in sorted(refs.items()):
-            prefix = next((p for p in PREFIXES if name.startswith(p)), None)
-            if prefix is None or sha is None:
-                continue
-            vehicle = name[len(prefix):].decode("utf-8", "replace")
-            commit = repo[sha]
-            if not isinstance(commit, Commit) or vehicle in seen:
-                continue
-            tree = repo[commit.tree]
-            assert isinstance(tree, Tree)
-            try:
-                _, blob_id = tree[b"status.json"]
-                body: dict[str, Any] = json.loads(repo[blob_id].as_raw_string())
-            except (KeyError, ValueError):
-                continue
-            seen[vehicle] = _row(vehicle, body, tip, commit.commit_time)
+    tip, files = published(repo_path, branch=branch, prefixes=PREFIXES, file=b"status.json")
+    seen: dict[str, Vehicle] = {}
+    for found in files:  # the first branch of a vehicle with a readable status counts
+        if found.name in seen:
+            continue
+        try:
+            body: dict[str, Any] = json.loads(found.content)
+        except ValueError:
+            continue
+        seen[found.name] = _row(found.name, body, tip, found.commit_time)
     return tip, list(seen.values())
 
 
