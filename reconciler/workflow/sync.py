@@ -16,9 +16,9 @@ phase fails on its own, and never at the running app's expense:
   anew, as apply does; with no network to do so the pass is "offline", not failed: the
   revision is not at fault, and the next pass with network tries it again.
 
-Relative `url:` paths in the desired state resolve against the source repository's own
-URL, as git resolves a submodule's (`../apps.git` beside the fleet repository, on the
-laptop that serves both).
+Where the source's revision comes from — the network or a bundle file — is a
+`DesiredStateSource` (workflow/source.py, with the relative `url:` paths of a desired
+state resolved against the source repository's URL, as git resolves a submodule's).
 """
 
 from __future__ import annotations
@@ -44,6 +44,14 @@ from reconciler.errors import (
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.machine import Machine
+from reconciler.workflow.source import (
+    DEFAULT_FILE,
+    SOURCE_KEY,
+    VEHICLE_DIR,
+    DesiredStateSource,
+    desired_at,
+)
+from reconciler.workflow.source import join_url as join_url
 from schemas.agent import (
     PASSES_KEPT,
     AgentConfig,
@@ -58,9 +66,6 @@ from schemas.agent import (
 if TYPE_CHECKING:
     from schemas.desired import DesiredState
 
-SOURCE_KEY = "@source"  # the desired-state repository in the store: never an app's key
-VEHICLE_DIR = "vehicles"
-DEFAULT_FILE = "desired-state.yaml"
 
 
 @dataclass(frozen=True)
@@ -102,19 +107,16 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     options = options or ApplyOptions()
     status = read_status(machine)
     vehicle = vehicle_id(machine, config)
-    if bundle is not None:
-        from reconciler.workflow.bundle import unpack
-
-        unpack(machine, bundle, config.source.url, config.source.branch)
-        offline: str | None = f"from the bundle {bundle}"
-    else:
-        try:
-            offline = _fetch(machine, config, report)
-        except StoreDamagedError as exc:
-            report(Note(f"offline: {exc.message}"))
-            return _record(machine, status, Synced("offline", None, exc.message, exc.hint))
-        if offline is None:
-            online.append(True)
+    source = _source(bundle)
+    try:
+        offline = source.bring(machine, config, report)
+    except StoreDamagedError as exc:
+        if not source.live:
+            raise
+        report(Note(f"offline: {exc.message}"))
+        return _record(machine, status, Synced("offline", None, exc.message, exc.hint))
+    if offline is None:
+        online.append(True)
     revision = _tip(machine, config)
     status = status.model_copy(update={"vehicle": vehicle, "desired_revision": revision})
     if revision is None:
@@ -123,7 +125,7 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     status = status.model_copy(update={"follows": followed(machine, vehicle, revision)})
     if fetch_only:
         return _record(machine, status, _fetch_pins(machine, config, vehicle, revision, report))
-    if offline and bundle is None and revision == status.applied_revision:
+    if offline and source.live and revision == status.applied_revision:
         return _record(machine, status, Synced("offline", revision, offline))
     if config.trust is not None:
         try:
@@ -270,6 +272,24 @@ def vehicle_id(machine: Machine, config: AgentConfig) -> str:
                           hint="set `vehicle:` in agent.yaml to a valid id") from None
 
 
+def _source(bundle: Path | None) -> DesiredStateSource:
+    """The network, or the bundle file `lpam sync --bundle` names."""
+    if bundle is None:
+        return Remote()
+    from reconciler.workflow.bundle import BundleFile
+
+    return BundleFile(bundle)
+
+
+class Remote:
+    """The source's URL, fetched over the network."""
+
+    live = True
+
+    def bring(self, machine: Machine, config: AgentConfig, report: Report) -> str | None:
+        return _fetch(machine, config, report)
+
+
 def _fetch(machine: Machine, config: AgentConfig, report: Report) -> str | None:
     """Fetch the source under the lock (a fetch is a write); the reason when offline."""
     from reconciler.execution.lock import apply_lock
@@ -381,40 +401,6 @@ def applied_desired(machine: Machine) -> Followed | None:
     if revision is None:
         return None
     return _desired(machine, config, vehicle_id(machine, config), revision)
-
-
-def desired_at(machine: Machine, url: str, revision: str,
-               name: str) -> tuple[Path, DesiredState] | None:
-    """The desired state in the file `name` of the source at `revision` (None without it),
-    relative URLs made absolute; faults are located as `fleet.git@c92f32f2ab56/<name>`."""
-    from reconciler.documents import desired_from
-    from reconciler.loading import load
-
-    data = machine.store().read_file(SOURCE_KEY, revision, name)
-    if data is None:
-        return None
-    label = Path(f"{url.rstrip('/').rsplit('/', 1)[-1]}@{revision[:12]}") / name
-    return label, anchored(desired_from(load(label, data.decode("utf-8", "replace"))), url)
-
-
-def anchored(desired: DesiredState, source: str) -> DesiredState:
-    repos = []
-    for spec in desired.repositories:
-        if spec.url is not None and "://" not in spec.url and not spec.url.startswith("/"):
-            spec = spec.model_copy(update={"url": join_url(source, spec.url)})
-        repos.append(spec)
-    return desired.model_copy(update={"repositories": repos})
-
-
-def join_url(base: str, relative: str) -> str:
-    """`relative` against the repository at `base`, as git joins a submodule's URL: from
-    the repository's own location (`../apps.git` is its sibling)."""
-    if "://" in base:
-        scheme, rest = base.split("://", 1)
-        host, _, path = rest.partition("/")
-        joined = posixpath.normpath(posixpath.join("/" + path, relative))
-        return f"{scheme}://{host}{joined}"
-    return posixpath.normpath(posixpath.join(base, relative))
 
 
 def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: str,
