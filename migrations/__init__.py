@@ -21,6 +21,7 @@ from typing import Any, Union
 
 from migrations import (
     agent_status_v1_to_v2,
+    car_status_v0_to_v1,
     desired_state_v0_to_v1,
     state_record_v1_to_v2,
     state_record_v2_to_v3,
@@ -30,7 +31,7 @@ from migrations.step import MigrationError, Step
 from reconciler.errors import ConfigError, VersionError
 
 CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 4, "plan": 1,
-                           "agent-config": 1, "agent-status": 2}
+                           "agent-config": 1, "agent-status": 2, "car-status": 1}
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
 STEPS: dict[str, dict[str, tuple[str, Step]]] = {
@@ -41,6 +42,7 @@ STEPS: dict[str, dict[str, tuple[str, Step]]] = {
     "plan": {},
     "agent-config": {},
     "agent-status": {"1": ("2", agent_status_v1_to_v2.upgrade)},
+    "car-status": {"0": ("1", car_status_v0_to_v1.upgrade)},
 }
 
 _MISSING_HINTS = {
@@ -50,12 +52,14 @@ _MISSING_HINTS = {
     "plan": "this plan was not written by lpam; make a new one with `lpam plan -o FILE`",
     "agent-config": "add `version: 1` at the top (see the README's fleet section)",
     "agent-status": "this status file was not written by lpam; move it aside",
+    "car-status": "the car publishes a new one with its next status",
 }
 
 _NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
 
 _LABELS = {"desired-state": "desired state", "state-record": "state record", "plan": "plan",
-           "agent-config": "agent configuration", "agent-status": "agent status"}
+           "agent-config": "agent configuration", "agent-status": "agent status",
+           "car-status": "car's published status"}
 
 Position = Callable[[Sequence[Union[str, int]]], Union[tuple[int, int], tuple[None, None]]]
 

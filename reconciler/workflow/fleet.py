@@ -11,11 +11,13 @@ and one small file per car. The age is measured against the clock the caller pas
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
+
+from reconciler.errors import ConfigError
+from schemas.fleet import CarStatus
 
 PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
 
@@ -36,31 +38,41 @@ class Vehicle:
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
     """(the followed branch's tip, one row per vehicle with a status branch)."""
     from reconciler.adapters.clone import published
+    from reconciler.publication import STATUS_FILE, read_status_file
 
-    tip, files = published(repo_path, branch=branch, prefixes=PREFIXES, file=b"status.json")
+    tip, files = published(repo_path, branch=branch, prefixes=PREFIXES,
+                           file=STATUS_FILE.encode())
     seen: dict[str, Vehicle] = {}
-    for found in files:  # the first branch of a vehicle with a readable status counts
+    for found in files:  # the first branch of a vehicle with a status in JSON counts
         if found.name in seen:
             continue
+        when = datetime.fromtimestamp(found.commit_time, timezone.utc)
         try:
-            body: dict[str, Any] = json.loads(found.content)
-        except ValueError:
+            status = read_status_file(found.content, where=Path(f"status/{found.name}") /
+                                      STATUS_FILE)
+        except ConfigError as exc:  # a damaged file, a newer lpam's: the car, and why
+            seen[found.name] = Vehicle(found.name, None, None, None, None, None, None,
+                                       exc.message, _seen(when))
             continue
-        seen[found.name] = _row(found.name, body, tip, found.commit_time)
+        if status is not None:
+            seen[found.name] = _row(found.name, status, tip, when)
     return tip, list(seen.values())
 
 
-def _row(vehicle: str, body: dict[str, Any], tip: str | None, when: int) -> Vehicle:
-    agent = body.get("agent") or {}
-    app = body.get("app") or {}
-    last = agent.get("last_attempt") or {}
-    applied = agent.get("applied_revision")
+def _row(vehicle: str, status: CarStatus, tip: str | None, when: datetime) -> Vehicle:
+    agent, app = status.agent, status.app
+    last = agent.last_attempt
+    applied = agent.applied_revision
     return Vehicle(
-        vehicle=vehicle, follows=agent.get("follows"), applied=applied,
+        vehicle=vehicle, follows=agent.follows, applied=applied,
         up_to_date=None if tip is None or applied is None else applied == tip,
-        app=app.get("name"), running=app.get("running"), last_pass=last.get("result"),
-        reason=last.get("reason"),
-        last_seen=datetime.fromtimestamp(when, timezone.utc).isoformat(timespec="seconds"))
+        app=None if app is None else app.name, running=None if app is None else app.running,
+        last_pass=None if last is None else last.result,
+        reason=None if last is None else last.reason, last_seen=_seen(when))
+
+
+def _seen(when: datetime) -> str:
+    return when.isoformat(timespec="seconds")
 
 
 def age(row: Vehicle, now: datetime) -> float:

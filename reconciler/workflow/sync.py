@@ -23,7 +23,6 @@ state resolved against the source repository's URL, as git resolves a submodule'
 
 from __future__ import annotations
 
-import json
 import posixpath
 import socket
 from dataclasses import dataclass
@@ -175,7 +174,6 @@ def _reason(exc: LpamError) -> str:
 
 
 STATUS_PREFIX = "status/"
-STATUS_FILE = "status.json"
 
 
 def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
@@ -187,7 +185,7 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     keeps working and its status stays local."""
     from reconciler import status as machine_status
     from reconciler.atomic import write_atomic
-    from reconciler.publication import APP_FIELDS, due, fingerprint
+    from reconciler.publication import APP_FIELDS, due, fingerprint, status_file
 
     own = read_status(machine)
     if own.vehicle is None:
@@ -199,13 +197,11 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
     if why is None:
         return
-    body = {"agent": own.model_dump(mode="json"), "app": shown}
-    text = json.dumps(body, indent=2, sort_keys=True) + "\n"
     branch = STATUS_PREFIX + own.vehicle
     result: Published = "pushed"
     reason = None
     try:
-        _push(machine, config, branch, text.encode("utf-8"), when=int(now.timestamp()),
+        _push(machine, config, branch, status_file(own, shown), when=int(now.timestamp()),
               report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:
@@ -230,7 +226,7 @@ def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *,
     commits, else starting it afresh. A server that refuses to rewrite the branch (git's
     receive.denyNonFastForwards, a protected branch) gets it on top after all: a status
     published with a growing history is better than none."""
-    from reconciler.publication import HISTORY, keeps_parent
+    from reconciler.publication import HISTORY, STATUS_FILE, keeps_parent
 
     store = machine.store()
     length = store.history_length(SOURCE_KEY, branch, limit=HISTORY)

@@ -35,6 +35,7 @@ STEP_FIXTURES = {
     ("state-record", "2"): FIXTURES / "state-record" / "v2_to_v3",
     ("state-record", "3"): FIXTURES / "state-record" / "v3_to_v4",
     ("agent-status", "1"): FIXTURES / "agent-status" / "v1_to_v2",
+    ("car-status", "0"): FIXTURES / "car-status" / "v0_to_v1",
 }
 PATH = Path("doc.yaml")
 
