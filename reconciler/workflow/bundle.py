@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from reconciler.errors import ConfigError, LpamError
+from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.sync import DEFAULT_FILE, SOURCE_KEY, VEHICLE_DIR, desired_at
@@ -46,7 +47,8 @@ class Entry:
     ref: str | None
 
 
-def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report) -> int:
+def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report,
+           lock_timeout: float = FETCH_LOCK_TIMEOUT) -> int:
     """Write the bundle of `url`'s `branch` to `out`; how many repositories it holds."""
     from dulwich.bundle import create_bundle_from_repo, write_bundle
     from dulwich.objects import Blob, ObjectID
@@ -57,7 +59,7 @@ def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report
     from reconciler.execution.lock import apply_lock
 
     store = machine.store()
-    with apply_lock(machine.layout, timeout=60.0):
+    with apply_lock(machine.layout, timeout=lock_timeout):
         store.fetch(SOURCE_KEY, url)
         refs = store.local_refs(SOURCE_KEY)
         tip = None if refs is None else refs.resolve(branch)
@@ -138,7 +140,8 @@ def _ref_name(machine: Machine, key: str, ref: str | None) -> str | None:
     return None
 
 
-def unpack(machine: Machine, path: Path, url: str, branch: str) -> str:
+def unpack(machine: Machine, path: Path, url: str, branch: str, *,
+           lock_timeout: float = FETCH_LOCK_TIMEOUT) -> str:
     """Bring the bundle at `path` into the store; the source revision it carries."""
     from dulwich.bundle import read_bundle
     from dulwich.refs import Ref
@@ -172,7 +175,7 @@ def unpack(machine: Machine, path: Path, url: str, branch: str) -> str:
                               f"car follows {url} ({branch})", path=path,
                               hint="make the bundle with --source set to the car's source")
         store = machine.store()
-        with apply_lock(machine.layout, timeout=60.0):
+        with apply_lock(machine.layout, timeout=lock_timeout):
             store.adopt(SOURCE_KEY, url, pack, [source["commit"]],
                         {f"refs/remotes/origin/{branch}": source["commit"]})
             for entry in manifest["repositories"]:

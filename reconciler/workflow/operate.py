@@ -20,6 +20,7 @@ from reconciler import __version__, generations
 from reconciler.errors import LpamError
 from reconciler.execution.context import Context
 from reconciler.execution.executor import execute
+from reconciler.layout import KEEP_GENERATIONS
 from reconciler.planning.lifecycle import app_steps, operator_steps, target_of
 from reconciler.planning.model import GenerationKey
 from reconciler.planning.plan import fingerprint
@@ -91,7 +92,8 @@ def previous_good(ctx: Context) -> HistoryEntry:
         if GenerationKey.of(entry.app, entry.generation) in present:
             return entry
     raise LpamError("no previous good generation is kept on disk to roll back to",
-                    hint="see `lpam history`; lpam keeps the last 3 good generations")
+                    hint="see `lpam history`; lpam keeps the last good generations on disk "
+                    f"({KEEP_GENERATIONS}, or as many as `--keep-generations` said)")
 
 
 def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,

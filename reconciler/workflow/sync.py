@@ -41,6 +41,7 @@ from reconciler.errors import (
     TrustError,
 )
 from reconciler.workflow.applying import ApplyOptions, apply
+from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.machine import Machine
 from schemas.agent import (
@@ -104,11 +105,13 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     if bundle is not None:
         from reconciler.workflow.bundle import unpack
 
-        unpack(machine, bundle, config.source.url, config.source.branch)
+        unpack(machine, bundle, config.source.url, config.source.branch,
+               lock_timeout=options.lock_wait(FETCH_LOCK_TIMEOUT))
         offline: str | None = f"from the bundle {bundle}"
     else:
         try:
-            offline = _fetch(machine, config, report)
+            offline = _fetch(machine, config, report,
+                             lock_timeout=options.lock_wait(FETCH_LOCK_TIMEOUT))
         except StoreDamagedError as exc:
             report(Note(f"offline: {exc.message}"))
             return _record(machine, status, Synced("offline", None, exc.message, exc.hint))
@@ -269,13 +272,14 @@ def vehicle_id(machine: Machine, config: AgentConfig) -> str:
                           hint="set `vehicle:` in agent.yaml to a valid id") from None
 
 
-def _fetch(machine: Machine, config: AgentConfig, report: Report) -> str | None:
+def _fetch(machine: Machine, config: AgentConfig, report: Report, *,
+           lock_timeout: float) -> str | None:
     """Fetch the source under the lock (a fetch is a write); the reason when offline."""
     from reconciler.execution.lock import apply_lock
     from reconciler.observe.targets import sound_copy
 
     try:
-        with apply_lock(machine.layout, timeout=60.0):
+        with apply_lock(machine.layout, timeout=lock_timeout):
             store = machine.store()
             sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
                        notice=lambda text: report(Note(text)))
