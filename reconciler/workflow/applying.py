@@ -100,14 +100,17 @@ def finishes_rollback(made: Plan) -> bool:
 
 
 def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOptions,
-                report: Report, gate: Gate | None = None,
-                listener: Listener | None = None) -> Applied:
+                report: Report) -> Applied:
     """`lpam apply PLANFILE`: refused when it is stale, edited, offline or inexact. A plan
-    holds no gates: `gate` and `listener` are the desired state's, which the caller read."""
+    holds no gates: it obeys those of the desired state in force (workflow/gates.py), read
+    here before the lock, so that no caller can run one ungated by forgetting them."""
     from reconciler.execution.lock import apply_lock
     from reconciler.planning.plan import check_plan
     from reconciler.state import read_record
+    from reconciler.workflow.gates import governing
 
+    gates = governing(machine, None)
+    gate, listener = gates.gate, gates.listener
     with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         record = read_record(machine.layout)
         check_plan(saved, lineage=record.lineage, serial=record.serial, source=source)
