@@ -405,13 +405,10 @@ def _ask(args: argparse.Namespace, question: str, *, what: str, verb: str) -> bo
 
 
 def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.documents import load_desired
-    from reconciler.workflow.planning import plan
+    from reconciler.workflow.planning import plan_file
 
-    path = _desired_path(args, layout)
-    desired = load_desired(path)
-    made = plan(_machine(args, layout), path, desired, report=Terminal(),
-                offline=args.offline, out=args.out, lock_timeout=args.lock_timeout)
+    made = plan_file(_machine(args, layout), _desired_path(args, layout), report=Terminal(),
+                     offline=args.offline, out=args.out, lock_timeout=args.lock_timeout)
     return _show_plan(args, made)
 
 
@@ -430,8 +427,8 @@ def _show_plan(args: argparse.Namespace, plan: Plan) -> int:
 
 
 def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.documents import load_desired, load_plan
-    from reconciler.workflow.applying import apply, apply_saved
+    from reconciler.documents import load_plan
+    from reconciler.workflow.applying import apply_file, apply_saved
 
     if args.planfile is not None and args.file is not None:
         raise LpamError("give either a plan file or -f FILE, not both")
@@ -445,12 +442,9 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
         done = apply_saved(machine, saved, str(args.planfile), options=options,
                            report=Terminal())
     else:
-        path = _desired_path(args, layout)
-        machine = _machine(args, layout)
-        machine.warm_network()
-        desired = load_desired(path)
-        done = apply(machine, path, desired, options=options,
-                     confirm=lambda plan: _confirm(args), report=Terminal())
+        done = apply_file(_machine(args, layout), _desired_path(args, layout),
+                          options=options, confirm=lambda plan: _confirm(args),
+                          report=Terminal())
     if done.cancelled:
         print("Apply cancelled; nothing was changed.")
         return EXIT_ERROR
@@ -557,14 +551,12 @@ def cmd_history(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
     """Exit 0 when applied, with nothing to do, or offline; 1 when the pass failed (the
     running app untouched, the reason recorded)."""
-    from reconciler.documents import load_agent
-    from reconciler.workflow.sync import sync
+    from reconciler.workflow.agent import one_pass, settings
 
-    config = load_agent(args.config if args.config is not None else layout.agent_config)
-    wait = config.gate_wait_seconds if args.wait is None else args.wait
-    options = _options(args, keep_generations=args.keep_generations, wait=wait)
-    done = sync(_machine(args, layout), config, report=Terminal(), options=options,
-                fetch_only=args.fetch_only, bundle=args.bundle)
+    config = settings(layout, args.config)
+    done = one_pass(_machine(args, layout), config, wait=args.wait, report=Terminal(),
+                    options=_options(args, keep_generations=args.keep_generations),
+                    fetch_only=args.fetch_only, bundle=args.bundle)
     revision = done.revision[:12] if done.revision else "none"
     print(f"Sync: {done.result} (revision {revision})"
           + (f": {done.reason}" if done.reason else ""),
@@ -577,12 +569,10 @@ def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
     """SIGTERM (systemd stopping the agent) stops it between passes at once, and during a
     pass before the next step that is not part of a cutover: never mid-cutover."""
-    from reconciler.documents import load_agent
-    from reconciler.workflow.agent import Agent
+    from reconciler.workflow.agent import Agent, settings
 
-    config = load_agent(args.config if args.config is not None else layout.agent_config)
-    agent = Agent(_machine(args, layout), config, report=_agent_report,
-                  options=_options(args, wait=config.gate_wait_seconds))
+    agent = Agent.following(_machine(args, layout), settings(layout, args.config),
+                            options=_options(args), report=_agent_report)
     signal.signal(signal.SIGTERM, lambda signum, frame: agent.stop.set())
     return agent.run(once=args.once)
 
@@ -590,15 +580,12 @@ def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
     """The units run this very lpam (its interpreter, absolute) on this root; agent.yaml
     must be valid first, so a car is never set to follow a source it cannot read."""
-    from reconciler.documents import load_agent
     from reconciler.workflow.agent import install_agent
 
-    config_path = args.config if args.config is not None else layout.agent_config
-    config = load_agent(config_path)
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
-    other = str(config_path.resolve()) if args.config is not None else None
-    for path in install_agent(_machine(args, layout), command, config=other,
-                              report=Terminal()):
+    written, config = install_agent(_machine(args, layout), command, config_file=args.config,
+                                    report=Terminal())
+    for path in written:
         print(f"Wrote {path}")
     print(f"The agent follows {config.source.url} ({config.source.branch}) every "
           f"{config.interval_seconds:g} s, and fetches at shutdown.")
@@ -654,9 +641,9 @@ def _agent_report(event: Event) -> None:
 
 
 def cmd_services(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.adapters.services.supervisor import shutdown
+    from reconciler.workflow.machine import shutdown_services
 
-    if shutdown(layout):
+    if shutdown_services(layout):
         print(f"Stopped the supervisord of {layout.root}; the apps it ran are stopped too.")
     else:
         print(f"No supervisord was running for {layout.root}.")

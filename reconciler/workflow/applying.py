@@ -85,6 +85,17 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
                             desired=desired_ref(desired, path))
 
 
+def apply_file(machine: Machine, path: Path, *, options: ApplyOptions,
+               confirm: Callable[[Plan], bool], report: Report) -> Applied:
+    """`lpam apply [-f FILE]`: the desired state at `path` read — refused before the lock,
+    while the network helper starts — then applied as `apply` does."""
+    from reconciler.documents import load_desired
+
+    machine.warm_network()
+    desired = load_desired(path)
+    return apply(machine, path, desired, options=options, confirm=confirm, report=report)
+
+
 def desired_ref(desired: DesiredState, path: Path) -> DesiredRef:
     """What an apply records it works toward: holds are held against its content."""
     from reconciler.workflow.operate import desired_fingerprint

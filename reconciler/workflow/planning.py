@@ -57,6 +57,16 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
                        busy=busy)[1]
 
 
+def plan_file(machine: Machine, path: Path, *, report: Report, offline: bool = False,
+              out: Path | None = None, lock_timeout: float | None = None) -> Plan:
+    """`lpam plan [-f FILE]`: the desired state at `path` read (refused before any lock),
+    then planned as `plan` does."""
+    from reconciler.documents import load_desired
+
+    return plan(machine, path, load_desired(path), report=report, offline=offline, out=out,
+                lock_timeout=lock_timeout)
+
+
 def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch,
             report: Report, busy: str | None = None) -> tuple[GitStore, Plan]:
     """Resolve the desired state, observe the machine and plan; `path` anchors relative
