@@ -64,6 +64,7 @@ from reconciler.errors import (
 from reconciler.execution.ports import READ_LIMIT, ambiguous
 from reconciler.layout import Layout, slug
 from reconciler.reading import MIB
+from reconciler.text import escaped
 from schemas.names import is_hex_commit, redact
 
 BLOBS_LIMIT = 10_000  # files in one app folder; more is not an app folder to compare
@@ -736,7 +737,7 @@ def _unsafe_path(repo: Repo, commit: Commit) -> str | None:
 def _printable(path: bytes) -> str:
     """`path` for a one-line message: control characters escaped, never interpreted."""
     text = path.decode("utf-8", "replace")
-    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+    return escaped(text)
 
 
 def _edits(repo: Repo) -> list[str]:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from reconciler.errors import ConfigError, LpamError
+from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.source import DEFAULT_FILE, SOURCE_KEY, VEHICLE_DIR, desired_at
@@ -39,13 +40,14 @@ class Entry:
     ref: str | None
 
 
-def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report) -> int:
+def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report,
+           lock_timeout: float = FETCH_LOCK_TIMEOUT) -> int:
     """Write the bundle of `url`'s `branch` to `out`; how many repositories it holds."""
     from reconciler.adapters import bundle
     from reconciler.execution.lock import apply_lock
 
     store = machine.store()
-    with apply_lock(machine.layout, timeout=60.0):
+    with apply_lock(machine.layout, timeout=lock_timeout):
         store.fetch(SOURCE_KEY, url)
         refs = store.local_refs(SOURCE_KEY)
         tip = None if refs is None else refs.resolve(branch)
@@ -104,7 +106,8 @@ def _ref_name(machine: Machine, key: str, ref: str | None) -> str | None:
     return None
 
 
-def unpack(machine: Machine, path: Path, url: str, branch: str) -> str:
+def unpack(machine: Machine, path: Path, url: str, branch: str, *,
+           lock_timeout: float = FETCH_LOCK_TIMEOUT) -> str:
     """Bring the bundle at `path` into the store; the source revision it carries."""
     from reconciler.adapters import bundle
     from reconciler.execution.lock import apply_lock
@@ -116,7 +119,7 @@ def unpack(machine: Machine, path: Path, url: str, branch: str) -> str:
                               f"car follows {url} ({branch})", path=path,
                               hint="make the bundle with --source set to the car's source")
         store = machine.store()
-        with apply_lock(machine.layout, timeout=60.0):
+        with apply_lock(machine.layout, timeout=lock_timeout):
             store.adopt(SOURCE_KEY, url, pack, [source["commit"]],
                         {f"refs/remotes/origin/{branch}": source["commit"]})
             for entry in manifest["repositories"]:
@@ -139,6 +142,8 @@ class BundleFile:
     path: Path
     live = False  # a file: never "offline", whatever it holds is all there is
 
-    def bring(self, machine: Machine, config: AgentConfig, report: Report) -> str | None:
-        unpack(machine, self.path, config.source.url, config.source.branch)
+    def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
+              lock_timeout: float) -> str | None:
+        unpack(machine, self.path, config.source.url, config.source.branch,
+               lock_timeout=lock_timeout)
         return f"from the bundle {self.path}"

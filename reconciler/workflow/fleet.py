@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from reconciler.errors import ConfigError
+from reconciler.text import printable
 from schemas.fleet import CarStatus
 
 PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
@@ -108,7 +109,7 @@ def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
               (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""),
               ago(age(r, now)))
              for r in rows]
-    cells = [tuple("".join(c if c.isprintable() else "?" for c in v)[:60] for v in row)
+    cells = [tuple(printable(v)[:60] for v in row)
              for row in cells]
     widths = [max(len(h), *(len(row[i]) for row in cells)) for i, h in enumerate(header)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip()]

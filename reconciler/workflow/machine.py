@@ -152,6 +152,14 @@ class Machine:
         return ctx, log
 
 
+def shutdown_services(layout: Layout) -> bool:
+    """`lpam services shutdown`: stop the supervisord lpam started for `layout` (and the
+    apps it runs); False when none was running."""
+    from reconciler.adapters.services.supervisor import shutdown
+
+    return shutdown(layout)
+
+
 class CommandLog:
     """The output of a long step (apt, pip, catkin_make): each line appended to the run's
     log, and reported as `Output` for whoever watches."""

@@ -36,9 +36,11 @@ class DesiredStateSource(Protocol):
         all there is."""
         ...
 
-    def bring(self, machine: Machine, config: AgentConfig, report: Report) -> str | None:
-        """Bring `config.source`'s branch (and for a bundle, what it pins) into the store;
-        why the pass is not online (None: it fetched from the network)."""
+    def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
+              lock_timeout: float) -> str | None:
+        """Bring `config.source`'s branch (and for a bundle, what it pins) into the store,
+        waiting at most `lock_timeout` s for the apply lock; why the pass is not online
+        (None: it fetched from the network)."""
         ...
 
 

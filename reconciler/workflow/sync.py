@@ -41,6 +41,7 @@ from reconciler.errors import (
     TrustError,
 )
 from reconciler.workflow.applying import ApplyOptions, apply
+from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.source import (
@@ -108,7 +109,8 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     vehicle = vehicle_id(machine, config)
     source = _source(bundle)
     try:
-        offline = source.bring(machine, config, report)
+        offline = source.bring(machine, config, report,
+                               lock_timeout=options.lock_wait(FETCH_LOCK_TIMEOUT))
     except StoreDamagedError as exc:
         if not source.live:
             raise
@@ -282,17 +284,19 @@ class Remote:
 
     live = True
 
-    def bring(self, machine: Machine, config: AgentConfig, report: Report) -> str | None:
-        return _fetch(machine, config, report)
+    def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
+              lock_timeout: float) -> str | None:
+        return _fetch(machine, config, report, lock_timeout=lock_timeout)
 
 
-def _fetch(machine: Machine, config: AgentConfig, report: Report) -> str | None:
+def _fetch(machine: Machine, config: AgentConfig, report: Report, *,
+           lock_timeout: float) -> str | None:
     """Fetch the source under the lock (a fetch is a write); the reason when offline."""
     from reconciler.execution.lock import apply_lock
     from reconciler.observe.targets import sound_copy
 
     try:
-        with apply_lock(machine.layout, timeout=60.0):
+        with apply_lock(machine.layout, timeout=lock_timeout):
             store = machine.store()
             sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
                        notice=lambda text: report(Note(text)))
