@@ -21,6 +21,7 @@ from typing import Any, Union
 
 from migrations import (
     agent_status_v1_to_v2,
+    car_status_v0_to_v1,
     desired_state_v0_to_v1,
     generation_meta_v0_to_v1,
     plan_v1_to_v2,
@@ -32,7 +33,8 @@ from migrations.step import MigrationError, Step
 from reconciler.errors import ConfigError, VersionError
 
 CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 4, "plan": 2,
-                           "agent-config": 1, "agent-status": 2, "generation-meta": 1}
+                           "agent-config": 1, "agent-status": 2, "generation-meta": 1,
+                           "car-status": 1}
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
 STEPS: dict[str, dict[str, tuple[str, Step]]] = {
@@ -44,6 +46,7 @@ STEPS: dict[str, dict[str, tuple[str, Step]]] = {
     "agent-config": {},
     "agent-status": {"1": ("2", agent_status_v1_to_v2.upgrade)},
     "generation-meta": {"0": ("1", generation_meta_v0_to_v1.upgrade)},
+    "car-status": {"0": ("1", car_status_v0_to_v1.upgrade)},
 }
 
 _MISSING_HINTS = {
@@ -54,13 +57,15 @@ _MISSING_HINTS = {
     "agent-config": "add `version: 1` at the top (see the README's fleet section)",
     "agent-status": "this status file was not written by lpam; move it aside",
     "generation-meta": "this file was not written by lpam; move it aside",
+    "car-status": "the car publishes a new one with its next status",
 }
 
 _NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
 
 _LABELS = {"desired-state": "desired state", "state-record": "state record", "plan": "plan",
            "agent-config": "agent configuration", "agent-status": "agent status",
-           "generation-meta": "generation metadata"}
+           "generation-meta": "generation metadata",
+           "car-status": "car's published status"}
 
 Position = Callable[[Sequence[Union[str, int]]], Union[tuple[int, int], tuple[None, None]]]
 

@@ -4,6 +4,10 @@ Maps every LpamError to one short message (file:line:column for documents) and e
 anything unexpected is a bug: its traceback goes to `<root>/var/log/lpam/debug.log`, and
 the user gets one line pointing there. Heavy libraries (dulwich, networkx) are imported
 only by the commands that need them, so `lpam --version` and `lpam status` start fast.
+
+Each `cmd_*` parses nothing itself: it takes the parsed arguments, calls one use case of
+reconciler/workflow (where every rule lives: locks, gates, holds, defaults), renders what
+it returns and reports, and returns the exit code.
 """
 
 from __future__ import annotations
@@ -16,62 +20,83 @@ import os
 import signal
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from reconciler import __version__
-from reconciler.errors import ConfigError, LpamError, Terminated
-from reconciler.layout import Layout
+from reconciler.errors import LpamError, Terminated
+from reconciler.layout import KEEP_GENERATIONS, Layout
+from reconciler.text import printable
+from reconciler.workflow.defaults import SCRIPT_TIMEOUT
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
-    from reconciler.execution.ports import Gate, Services
+    from reconciler.workflow.applying import ApplyOptions
     from reconciler.workflow.events import Event
     from reconciler.workflow.machine import Machine
-    from schemas.desired import DesiredState
     from schemas.plan import Plan
+    from schemas.record import HistoryEntry
 
 EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
-NETWORK_TIMEOUT = ("--network-timeout",)
-NETWORK_TIMEOUT_OPTIONS: dict[str, Any] = {
-    "type": float, "default": 60.0, "metavar": "SECONDS",
-    "help": "give up on a git server that does not answer for this long (default 60)",
-}
-SERVICES = ("--services",)
-SERVICES_OPTIONS: dict[str, Any] = {
-    "choices": ("systemd", "supervisor"), "default": None,
-    "help": "service manager that runs the app (default: $LPAM_SERVICES, else systemd "
-    "where it runs, else supervisord)",
-}
-LOCK_TIMEOUT = ("--lock-timeout",)
-LOCK_TIMEOUT_OPTIONS: dict[str, Any] = {
-    "type": float, "default": 10.0, "metavar": "SECONDS",
-    "help": "wait this long for a running apply to finish (default 10)",
-}
+VALIDATE_KINDS = ("desired-state", "catalog", "repository", "agent", "plan")
+"""The values of reconciler.validation.Kind, spelled out: the parser is built before any
+command runs, and `lpam --version` must not import the schemas."""
+OPERATOR_ACTIONS = (
+    ("start", "start the installed app now (ends an operator stop)"),
+    ("stop", "stop the installed app; it stays stopped until `lpam start` or a change of the "
+     "desired state"),
+    ("restart", "stop and start the installed app"),
+)
+"""schemas.operator.OperatorAction's values (spelled out for the same reason), each with
+its help."""
 
 
 def now() -> datetime:
     return datetime.now(timezone.utc)
 
 
-def services_for(layout: Layout, override: str | None) -> Services:
-    from reconciler.workflow.machine import services_for as choose
+def _at_least_one(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError("keep at least 1 (the installed generation)")
+    return value
 
-    return choose(layout, override)
 
+Option = tuple[tuple[str, ...], dict[str, Any]]
+OPTIONS: dict[str, Option] = {
+    "file": (("-f", "--file"), {"type": Path, "help": "desired state (default: under --root)"}),
+    "json": (("--json",), {"action": "store_true"}),
+    "yes": (("--yes",), {"action": "store_true"}),
+    "config": (("--config",), {"type": Path, "help": "agent.yaml (default: under --root)"}),
+    "lock-timeout": (("--lock-timeout",), {
+        "type": float, "default": None, "metavar": "SECONDS",
+        "help": "wait this long for a running apply to finish (default 10)"}),
+    "script-timeout": (("--script-timeout",), {
+        "type": float, "default": SCRIPT_TIMEOUT, "metavar": "SECONDS",
+        "help": "kill an app script running longer than this (default 600)"}),
+    "network-timeout": (("--network-timeout",), {
+        "type": float, "default": 60.0, "metavar": "SECONDS",
+        "help": "give up on a git server that does not answer for this long (default 60)"}),
+    "services": (("--services",), {
+        "choices": ("systemd", "supervisor"), "default": None,
+        "help": "service manager that runs the app (default: $LPAM_SERVICES, else systemd "
+        "where it runs, else supervisord)"}),
+    "keep-generations": (("--keep-generations",), {
+        "type": _at_least_one, "default": KEEP_GENERATIONS, "metavar": "N",
+        "help": "good generations kept on disk for `lpam rollback` "
+        f"(default {KEEP_GENERATIONS})"}),
+    "wait": (("--wait",), {
+        "type": float, "default": 0.0, "metavar": "SECONDS",
+        "help": "wait up to SECONDS for closed update gates to open before the cutover; "
+        "still closed: exit 75, deferred (default 0)"}),
+    "force": (("--force",), {
+        "action": "store_true", "help": "ignore the update gates (the vehicle may be moving)"}),
+}
+"""Every option more than one command takes, declared once. `--lock-timeout` defaults to
+None: each use case knows how long its lock waits (reconciler/workflow/defaults.py)."""
 
-WAIT = ("--wait",)
-WAIT_OPTIONS: dict[str, Any] = {
-    "type": float, "default": 0.0, "metavar": "SECONDS",
-    "help": "wait up to SECONDS for closed update gates to open before the cutover; still "
-            "closed: exit 75, deferred (default 0)"}
-VALIDATE_KINDS = ("desired-state", "catalog", "repository", "agent", "plan")
-"""The values of reconciler.validation.Kind, spelled out: the parser is built before any
-command runs, and `lpam --version` must not import the schemas."""
-FORCE = ("--force",)
-FORCE_OPTIONS: dict[str, Any] = {
-    "action": "store_true", "help": "ignore the update gates (the vehicle may be moving)"}
+New = Callable[[str, str], argparse.ArgumentParser]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -87,158 +112,133 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"lpam {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    plan = sub.add_parser("plan", parents=[common], help="show what apply would change")
-    plan.add_argument("-f", "--file", type=Path, help="desired state (default: under --root)")
-    plan.add_argument("--json", action="store_true", help="print the plan as JSON")
+    def new(name: str, what: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=[common], help=what)
+
+    for declare in (_plan_apply, _status_operate, _logs_history_rollback, _sync_agent,
+                    _gates_install_bundle, _fleet_pin_services, _validate_import):
+        declare(new)
+    return parser
+
+
+def _add(parser: argparse.ArgumentParser, *names: str, **override: Any) -> None:
+    """The shared options `names`, in the order `--help` shows them; `override` changes
+    fields (`help=`, `default=`) of each of them."""
+    for name in names:
+        flags, options = OPTIONS[name]
+        parser.add_argument(*flags, **{**options, **override})
+
+
+def _plan_apply(new: New) -> None:
+    plan = new("plan", "show what apply would change")
+    _add(plan, "file")
+    _add(plan, "json", help="print the plan as JSON")
     plan.add_argument("-o", "--out", type=Path, help="save the plan for `lpam apply PLANFILE`")
     plan.add_argument("--detailed-exitcode", action="store_true",
                       help="exit 0 without changes, 2 with changes, 1 on error")
     plan.add_argument("--offline", action="store_true",
                       help="use no network: plan from what the last fetch brought")
-    plan.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
-    plan.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
-    plan.add_argument(*SERVICES, **SERVICES_OPTIONS)
+    _add(plan, "lock-timeout", "network-timeout", "services")
 
-    apply = sub.add_parser("apply", parents=[common], help="make the machine match")
+    apply = new("apply", "make the machine match")
     apply.add_argument("planfile", nargs="?", type=Path, help="a plan saved by plan --out")
-    apply.add_argument("-f", "--file", type=Path, help="desired state (default: under --root)")
-    apply.add_argument("--yes", action="store_true", help="apply without asking")
-    apply.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
-    apply.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
-                       help="kill an app script running longer than this (default 600)")
-    apply.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
-    apply.add_argument(*SERVICES, **SERVICES_OPTIONS)
-    apply.add_argument("--keep-generations", type=_at_least_one, default=3, metavar="N",
-                       help="good generations kept on disk for `lpam rollback` (default 3)")
+    _add(apply, "file")
+    _add(apply, "yes", help="apply without asking")
+    _add(apply, "lock-timeout", "script-timeout", "network-timeout", "services",
+         "keep-generations")
     apply.add_argument("--release", action="store_true",
                        help="end a rollback's hold and apply the desired state again")
-    apply.add_argument(*WAIT, **WAIT_OPTIONS)
+    _add(apply, "wait")
 
-    status = sub.add_parser("status", parents=[common], help="show repositories and apps")
-    status.add_argument("--json", action="store_true")
-    status.add_argument(*SERVICES, **SERVICES_OPTIONS)
 
-    for action, what in (("start", "start the installed app now (ends an operator stop)"),
-                         ("stop", "stop the installed app; it stays stopped until `lpam "
-                          "start` or a change of the desired state"),
-                         ("restart", "stop and start the installed app")):
-        op = sub.add_parser(action, parents=[common], help=what)
-        op.add_argument("-f", "--file", type=Path,
-                        help="desired state whose update gates apply (default: under --root)")
-        op.add_argument(*WAIT, **WAIT_OPTIONS)
-        op.add_argument(*FORCE, **FORCE_OPTIONS)
-        op.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
-        op.add_argument(*SERVICES, **SERVICES_OPTIONS)
-        op.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
-                        help="kill an app script running longer than this (default 600)")
+def _status_operate(new: New) -> None:
+    _add(new("status", "show repositories and apps"), "json", "services")
+    for action, what in OPERATOR_ACTIONS:
+        operate = new(action, what)
+        _add(operate, "file", help="desired state whose update gates apply (default: under "
+             "--root)")
+        _add(operate, "wait", "force", "lock-timeout", "services", "script-timeout")
 
-    logs = sub.add_parser("logs", parents=[common], help="the installed app's recent output")
+
+def _logs_history_rollback(new: New) -> None:
+    logs = new("logs", "the installed app's recent output")
     logs.add_argument("-n", "--lines", type=int, default=50, help="how many lines (default 50)")
     logs.add_argument("-f", "--follow", action="store_true", help="keep printing new output")
-    logs.add_argument(*SERVICES, **SERVICES_OPTIONS)
+    _add(logs, "services")
 
-    history = sub.add_parser("history", parents=[common],
-                             help="the generations made current, newest last")
-    history.add_argument("--json", action="store_true")
+    _add(new("history", "the generations made current, newest last"), "json")
 
-    rollback = sub.add_parser("rollback", parents=[common],
-                              help="make the previous good generation current again, offline")
-    rollback.add_argument("-f", "--file", type=Path,
-                          help="desired state the rollback holds against (default: under --root)")
-    rollback.add_argument("--yes", action="store_true", help="roll back without asking")
-    rollback.add_argument(*WAIT, **WAIT_OPTIONS)
-    rollback.add_argument(*FORCE, **FORCE_OPTIONS)
-    rollback.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
-    rollback.add_argument(*SERVICES, **SERVICES_OPTIONS)
-    rollback.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
-                          help="kill an app script running longer than this (default 600)")
+    rollback = new("rollback", "make the previous good generation current again, offline")
+    _add(rollback, "file",
+         help="desired state the rollback holds against (default: under --root)")
+    _add(rollback, "yes", help="roll back without asking")
+    _add(rollback, "wait", "force", "lock-timeout", "services", "script-timeout")
 
-    sync = sub.add_parser("sync", parents=[common],
-                          help="one pass of following the desired-state repository")
-    sync.add_argument("--config", type=Path, help="agent.yaml (default: under --root)")
+
+def _sync_agent(new: New) -> None:
+    sync = new("sync", "one pass of following the desired-state repository")
+    _add(sync, "config")
     sync.add_argument("--fetch-only", action="store_true",
                       help="fetch the source and what it pins, record, change nothing")
     sync.add_argument("--bundle", type=Path, metavar="FILE",
                       help="take the source and what it pins from a bundle: no network")
-    sync.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
-    sync.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
-    sync.add_argument(*SERVICES, **SERVICES_OPTIONS)
-    sync.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
-                      help="kill an app script running longer than this (default 600)")
-    sync.add_argument("--keep-generations", type=_at_least_one, default=3, metavar="N",
-                      help="good generations kept on disk for `lpam rollback` (default 3)")
-    sync.add_argument("--wait", type=float, default=None, metavar="SECONDS",
-                      help="wait up to SECONDS for closed update gates (default: agent.yaml's "
-                      "gate_wait_seconds)")
+    _add(sync, "lock-timeout", "network-timeout", "services", "script-timeout",
+         "keep-generations")
+    _add(sync, "wait", default=None, help="wait up to SECONDS for closed update gates "
+         "(default: agent.yaml's gate_wait_seconds)")
 
-    agent = sub.add_parser("agent", parents=[common],
-                           help="follow the desired-state repository: sync passes forever")
-    agent.add_argument("--config", type=Path, help="agent.yaml (default: under --root)")
+    agent = new("agent", "follow the desired-state repository: sync passes forever")
+    _add(agent, "config")
     agent.add_argument("--once", action="store_true", help="one pass, then exit with its code")
-    agent.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
-    agent.add_argument(*SERVICES, **SERVICES_OPTIONS)
-    agent.add_argument("--script-timeout", type=float, default=600.0, metavar="SECONDS",
-                       help="kill an app script running longer than this (default 600)")
-    agent.add_argument(*LOCK_TIMEOUT, **LOCK_TIMEOUT_OPTIONS)
+    _add(agent, "network-timeout", "services", "script-timeout", "lock-timeout")
 
-    gates = sub.add_parser("gates", parents=[common],
-                           help="the update gates now: speed, locks, time window")
-    gates.add_argument("-f", "--file", type=Path, help="desired state (default: under --root)")
-    gates.add_argument("--json", action="store_true")
 
-    install = sub.add_parser("install-agent", parents=[common],
-                             help="install the systemd units that run the agent on this car")
-    install.add_argument("--config", type=Path, help="agent.yaml (default: under --root)")
-    install.add_argument(*SERVICES, **SERVICES_OPTIONS)
+def _gates_install_bundle(new: New) -> None:
+    gates = new("gates", "the update gates now: speed, locks, time window")
+    _add(gates, "file", "json")
 
-    bundle = sub.add_parser("bundle", parents=[common],
-                            help="offline bundles of the desired state and what it pins")
+    _add(new("install-agent", "install the systemd units that run the agent on this car"),
+         "config", "services")
+
+    bundle = new("bundle", "offline bundles of the desired state and what it pins")
     bundle.add_argument("action", choices=("create",))
     bundle.add_argument("out", type=Path, help="the bundle file to write")
     bundle.add_argument("--source", help="desired-state repository (default: agent.yaml's)")
     bundle.add_argument("--branch", help="its branch (default: agent.yaml's, else main)")
-    bundle.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
+    _add(bundle, "network-timeout")
 
-    fleet = sub.add_parser("fleet", parents=[common],
-                           help="the fleet's status, read from a clone of its repository")
+
+def _fleet_pin_services(new: New) -> None:
+    fleet = new("fleet", "the fleet's status, read from a clone of its repository")
     fleet.add_argument("action", choices=("status",))
     fleet.add_argument("--repo", type=Path, default=Path("."),
                        help="a clone of the desired-state repository (default: here)")
     fleet.add_argument("--branch", default="main", help="the branch the cars follow")
-    fleet.add_argument("--json", action="store_true")
+    _add(fleet, "json")
 
-    pin = sub.add_parser("pin", parents=[common],
-                         help="pin every branch or tag of a desired state to its commit now")
+    pin = new("pin", "pin every branch or tag of a desired state to its commit now")
     pin.add_argument("file", nargs="?", type=Path, help="desired state (default: under --root)")
     pin.add_argument("--catalogs", action="store_true",
                      help="also report the ROS repositories of the app it names")
     pin.add_argument("--dry-run", action="store_true", help="say what would change only")
-    pin.add_argument(*NETWORK_TIMEOUT, **NETWORK_TIMEOUT_OPTIONS)
+    _add(pin, "network-timeout")
+    _add(pin, "lock-timeout", help="wait this long for a running apply to finish (default 60)")
 
-    services = sub.add_parser("services", parents=[common],
-                              help="the service manager lpam started (supervisord)")
+    services = new("services", "the service manager lpam started (supervisord)")
     services.add_argument("action", choices=("shutdown",),
                           help="shutdown: stop the supervisord lpam started for this root")
 
-    validate = sub.add_parser("validate", parents=[common],
-                              help="check any document lpam reads, by the kind its keys show")
+
+def _validate_import(new: New) -> None:
+    validate = new("validate", "check any document lpam reads, by the kind its keys show")
     validate.add_argument("path", type=Path)
     validate.add_argument("--kind", choices=VALIDATE_KINDS,
                           help="read PATH as this kind instead of deciding from its keys")
 
-    imp = sub.add_parser("import-lpam", parents=[common],
-                         help="write a desired state equivalent to an LPAM installation")
+    imp = new("import-lpam", "write a desired state equivalent to an LPAM installation")
     imp.add_argument("etc_dir", nargs="?", type=Path,
                      help="LPAM's folder (default: <root>/etc/libpanda.d)")
     imp.add_argument("-o", "--output", type=Path, help="write here instead of printing")
-    return parser
-
-
-def _at_least_one(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError("keep at least 1 (the installed generation)")
-    return value
 
 
 def _layout(args: argparse.Namespace) -> Layout:
@@ -379,21 +379,36 @@ class Terminal:
 def _fit(line: str, width: int) -> str:
     """`line` in at most `width` printable characters, cut in the middle: the end of a
     command line (the path, the package) is the part that says most."""
-    text = "".join(c if c.isprintable() else "?" for c in line)
+    text = printable(line)
     if len(text) <= width:
         return text
     head = width * 2 // 5
     return f"{text[:head]} … {text[len(text) - (width - head - 3):]}"
 
 
-def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.documents import load_desired
-    from reconciler.workflow.planning import plan
+def _options(args: argparse.Namespace, **more: Any) -> ApplyOptions:
+    """The run options a command was given (each use case supplies its own defaults)."""
+    from reconciler.workflow.applying import ApplyOptions
 
-    path = _desired_path(args, layout)
-    desired = load_desired(path)
-    made = plan(_machine(args, layout), path, desired, report=Terminal(),
-                offline=args.offline, out=args.out, lock_timeout=args.lock_timeout)
+    return ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
+                        resume=again(args), **more)
+
+
+def _ask(args: argparse.Namespace, question: str, *, what: str, verb: str) -> bool:
+    """`--yes`, else the operator typing `yes` at a terminal; no terminal is an error."""
+    if args.yes:
+        return True
+    if not sys.stdin.isatty():
+        raise LpamError(f"{what} needs confirmation",
+                        hint=f"pass --yes to {verb} without asking")
+    return input(question).strip() == "yes"
+
+
+def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.planning import plan_file
+
+    made = plan_file(_machine(args, layout), _desired_path(args, layout), report=Terminal(),
+                     offline=args.offline, out=args.out, lock_timeout=args.lock_timeout)
     return _show_plan(args, made)
 
 
@@ -412,32 +427,24 @@ def _show_plan(args: argparse.Namespace, plan: Plan) -> int:
 
 
 def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.documents import load_desired, load_plan
-    from reconciler.workflow.applying import ApplyOptions, apply, apply_saved
+    from reconciler.documents import load_plan
+    from reconciler.workflow.applying import apply_file, apply_saved
 
     if args.planfile is not None and args.file is not None:
         raise LpamError("give either a plan file or -f FILE, not both")
-    options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
-                           keep_generations=args.keep_generations, release=args.release,
-                           wait=args.wait, resume=again(args))
+    options = _options(args, keep_generations=args.keep_generations, release=args.release,
+                       wait=args.wait)
     # Bad input is rejected before the lock is taken, so it never waits on another apply.
     if args.planfile is not None:
         saved = load_plan(args.planfile)
         machine = _machine(args, layout)
-        found = _desired_if_any(args, layout, machine)
-        base = found[2] if found else layout.root
         print()
         done = apply_saved(machine, saved, str(args.planfile), options=options,
-                           report=Terminal(),
-                           gate=machine.gate_for(found[1], base) if found else None,
-                           listener=machine.listener_for(found[1], base) if found else None)
+                           report=Terminal())
     else:
-        path = _desired_path(args, layout)
-        machine = _machine(args, layout)
-        machine.warm_network()
-        desired = load_desired(path)
-        done = apply(machine, path, desired, options=options,
-                     confirm=lambda plan: _confirm(args), report=Terminal())
+        done = apply_file(_machine(args, layout), _desired_path(args, layout),
+                          options=options, confirm=lambda plan: _confirm(args),
+                          report=Terminal())
     if done.cancelled:
         print("Apply cancelled; nothing was changed.")
         return EXIT_ERROR
@@ -447,91 +454,69 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def _confirm(args: argparse.Namespace) -> bool:
-    if not args.yes:
-        if not sys.stdin.isatty():
-            raise LpamError("apply needs confirmation", hint="pass --yes to apply without asking")
-        if input("\nApply these changes? Only 'yes' is accepted: ").strip() != "yes":
-            return False
+    if not _ask(args, "\nApply these changes? Only 'yes' is accepted: ", what="apply",
+                verb="apply"):
+        return False
     print()
     return True
 
 
 def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
     """`lpam start|stop|restart`: on the installed app now, journalled like an apply."""
-    from reconciler.execution.lock import apply_lock
-    from reconciler.workflow.operate import operate
+    from reconciler.workflow.operate import operate_installed
+    from schemas.operator import OperatorAction
 
-    machine = _machine(args, layout)
-    gate = _gate(args, layout, machine)
-    with apply_lock(layout, timeout=args.lock_timeout) as lock:
-        ctx, _ = machine.context(machine.store(), lock, command=args.command,
-                                 script_timeout=args.script_timeout, report=Terminal(),
-                                 gate=gate, gate_wait=args.wait)
-        print(operate(ctx, args.command, progress=print))
+    print(operate_installed(_machine(args, layout), OperatorAction(args.command),
+                            file=args.file, force=args.force,
+                            options=_options(args, wait=args.wait), report=Terminal()))
     return EXIT_OK
 
 
-def _gate(args: argparse.Namespace, layout: Layout, machine: Machine) -> Gate | None:
-    """The update gates operator commands obey, unless `--force`: those of `-f FILE`, else
-    of the default desired state, else of the one the agent last applied."""
-    if getattr(args, "force", False):
-        return None
-    found = _desired_if_any(args, layout, machine)
-    return machine.gate_for(found[1], found[2]) if found else None
+def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.operate import roll_back
 
+    def confirm(entry: HistoryEntry) -> bool:
+        print(f"Roll back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}, "
+              f"applied {entry.time})?")
+        return _ask(args, "Only 'yes' is accepted: ", what="rollback",
+                    verb="roll back")
 
-def _desired_if_any(args: argparse.Namespace, layout: Layout,
-                    machine: Machine) -> tuple[Path, DesiredState, Path] | None:
-    """The desired state in force (see `_gate`), for its gates and vehicle source; one that
-    cannot be read leaves the gates unknown, which is refused rather than guessed."""
-    from reconciler.documents import load_desired
-    from reconciler.workflow.sync import applied_desired
-
-    path = _desired_path(args, layout)
-    try:
-        if path.exists():
-            return path, load_desired(path), path.resolve().parent
-        followed = None if args.file else applied_desired(machine)
-        return None if followed is None else \
-            (followed.label, followed.desired, followed.base_dir)
-    except LpamError as exc:  # raised as it is, so a document's file:line:col stays
-        exc.hint = ((exc.hint + "; ") if exc.hint else "") + (
-            "the update gates cannot be known: fix it, or pass --force to ignore them "
-            "(the vehicle may be moving)")
-        raise
+    done = roll_back(_machine(args, layout), file=args.file, force=args.force,
+                     options=_options(args, wait=args.wait), confirm=confirm,
+                     report=Terminal())
+    if done is None:
+        print("Rollback cancelled; nothing was changed.")
+        return EXIT_ERROR
+    print(done)
+    return EXIT_OK
 
 
 def cmd_gates(args: argparse.Namespace, layout: Layout) -> int:
     """Each update gate now. Exit 0 when all are open, 75 when a cutover would be deferred."""
-    from reconciler.documents import load_desired
     from reconciler.errors import Deferred
+    from reconciler.workflow.gates import gates_now
 
-    path = _desired_path(args, layout)
-    desired = load_desired(path)
-    gate = _machine(args, layout).gate_for(desired, path.resolve().parent)
-    states = list(gate.states()) if gate is not None else []
-    is_open = all(s.open for s in states)
+    now_ = gates_now(_machine(args, layout), _desired_path(args, layout))
+    path, states = now_.path, now_.states
     if args.json:
-        print(json.dumps({"desired_state": str(path), "gated": gate is not None,
-                          "open": is_open, "gates": [
+        print(json.dumps({"desired_state": str(path), "gated": now_.gated,
+                          "open": now_.open, "gates": [
                               {"name": s.name, "open": s.open, "detail": s.detail}
                               for s in states]}, indent=2))
-    elif gate is None:
+    elif not now_.gated:
         print(f"No update gates: {path} has no `gates:`; a cutover may happen at any moment.")
     else:
         print(f"Update gates of {path}:")
         for s in states:
             print(f"  {s.name:<8} {'open' if s.open else 'CLOSED':<7} {s.detail}")
-        print("A cutover may happen now." if is_open else
+        print("A cutover may happen now." if now_.open else
               "A cutover now would be deferred (exit 75).")
-    return EXIT_OK if is_open else Deferred.exit_code
+    return EXIT_OK if now_.open else Deferred.exit_code
 
 
 def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
     """The installed app's output (reconciler/workflow/logs.py says from where)."""
-    import time
-
-    from reconciler.workflow.logs import app_logs
+    from reconciler.workflow.logs import app_logs, new_output
 
     machine = _machine(args, layout)
     shown = app_logs(machine, max(args.lines, 1))
@@ -539,88 +524,39 @@ def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
         print(f"note: {note}", file=sys.stderr)
     for line in shown.lines:
         print(line)
-    if args.follow and shown.unit is None:
-        raise LpamError("cannot follow: the service manager does not have this app's output",
-                        hint="the note above says where it is")
-    previous = shown.lines
-    while args.follow and shown.unit is not None:
-        time.sleep(1.0)
-        lines = machine.services.logs(shown.unit, 200)
-        for line in lines[_overlap(previous, lines):]:
+    if args.follow:
+        for line in new_output(machine, shown):
             print(line, flush=True)
-        previous = lines
     return EXIT_OK
-
-
-def _overlap(before: list[str], after: list[str]) -> int:
-    """How many leading lines of `after` were the end of `before` (what -f already printed)."""
-    for size in range(min(len(before), len(after)), 0, -1):
-        if before[-size:] == after[:size]:
-            return size
-    return 0
 
 
 def cmd_history(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.state import read_record
+    from reconciler.workflow.history import history
 
-    record = read_record(layout)
+    made = history(layout)
     if args.json:
-        print(json.dumps([h.model_dump(mode="json") for h in record.history], indent=2))
+        print(json.dumps([m.entry.model_dump(mode="json") for m in made], indent=2))
         return EXIT_OK
-    if not record.history:
+    if not made:
         print("No history yet: no apply has made an app current.")
         return EXIT_OK
-    current = record.app
-    for h in record.history:
-        mark = "*" if current is not None and (h.generation, h.params) == (
-            current.generation, current.params) and h.result == "applied" else " "
+    for m in made:
+        h = m.entry
         params = " ".join(f"{k}={v}" for k, v in sorted(h.params.items())) or "-"
-        print(f"{mark} {h.time}  {h.app:<20} {h.generation}  {h.repository}@{h.commit[:12]}  "
-              f"{h.result:<11}  {params}")
-    return EXIT_OK
-
-
-def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.documents import load_desired
-    from reconciler.execution.lock import apply_lock
-    from reconciler.workflow.operate import previous_good, rollback
-
-    path = _desired_path(args, layout)
-    desired = load_desired(path) if path.exists() else None
-    machine = _machine(args, layout)
-    gate = _gate(args, layout, machine)
-    with apply_lock(layout, timeout=args.lock_timeout) as lock:
-        ctx, _ = machine.context(machine.store(), lock, command=args.command,
-                                 script_timeout=args.script_timeout, report=Terminal(),
-                                 gate=gate, gate_wait=args.wait)
-        entry = previous_good(ctx)
-        print(f"Roll back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}, "
-              f"applied {entry.time})?")
-        if not args.yes:
-            if not sys.stdin.isatty():
-                raise LpamError("rollback needs confirmation",
-                                hint="pass --yes to roll back without asking")
-            if input("Only 'yes' is accepted: ").strip() != "yes":
-                print("Rollback cancelled; nothing was changed.")
-                return EXIT_ERROR
-        print(rollback(ctx, entry, desired, progress=print))
+        print(f"{'*' if m.current else ' '} {h.time}  {h.app:<20} {h.generation}  "
+              f"{h.repository}@{h.commit[:12]}  {h.result:<11}  {params}")
     return EXIT_OK
 
 
 def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
     """Exit 0 when applied, with nothing to do, or offline; 1 when the pass failed (the
     running app untouched, the reason recorded)."""
-    from reconciler.documents import load_agent
-    from reconciler.workflow.applying import ApplyOptions
-    from reconciler.workflow.sync import sync
+    from reconciler.workflow.agent import one_pass, settings
 
-    config = load_agent(args.config if args.config is not None else layout.agent_config)
-    wait = config.gate_wait_seconds if args.wait is None else args.wait
-    options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
-                           keep_generations=args.keep_generations, wait=wait,
-                           resume=again(args))
-    done = sync(_machine(args, layout), config, report=Terminal(), options=options,
-                fetch_only=args.fetch_only, bundle=args.bundle)
+    config = settings(layout, args.config)
+    done = one_pass(_machine(args, layout), config, wait=args.wait, report=Terminal(),
+                    options=_options(args, keep_generations=args.keep_generations),
+                    fetch_only=args.fetch_only, bundle=args.bundle)
     revision = done.revision[:12] if done.revision else "none"
     print(f"Sync: {done.result} (revision {revision})"
           + (f": {done.reason}" if done.reason else ""),
@@ -633,14 +569,10 @@ def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
     """SIGTERM (systemd stopping the agent) stops it between passes at once, and during a
     pass before the next step that is not part of a cutover: never mid-cutover."""
-    from reconciler.documents import load_agent
-    from reconciler.workflow.agent import Agent
-    from reconciler.workflow.applying import ApplyOptions
+    from reconciler.workflow.agent import Agent, settings
 
-    config = load_agent(args.config if args.config is not None else layout.agent_config)
-    options = ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
-                           wait=config.gate_wait_seconds, resume=again(args))
-    agent = Agent(_machine(args, layout), config, report=_agent_report, options=options)
+    agent = Agent.following(_machine(args, layout), settings(layout, args.config),
+                            options=_options(args), report=_agent_report)
     signal.signal(signal.SIGTERM, lambda signum, frame: agent.stop.set())
     return agent.run(once=args.once)
 
@@ -648,15 +580,12 @@ def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
     """The units run this very lpam (its interpreter, absolute) on this root; agent.yaml
     must be valid first, so a car is never set to follow a source it cannot read."""
-    from reconciler.documents import load_agent
     from reconciler.workflow.agent import install_agent
 
-    config_path = args.config if args.config is not None else layout.agent_config
-    config = load_agent(config_path)
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
-    other = str(config_path.resolve()) if args.config is not None else None
-    for path in install_agent(_machine(args, layout), command, config=other,
-                              report=Terminal()):
+    written, config = install_agent(_machine(args, layout), command, config_file=args.config,
+                                    report=Terminal())
+    for path in written:
         print(f"Wrote {path}")
     print(f"The agent follows {config.source.url} ({config.source.branch}) every "
           f"{config.interval_seconds:g} s, and fetches at shutdown.")
@@ -665,26 +594,10 @@ def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
 
 def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
     """Made under a temporary root of its own: a laptop needs no lpam installation."""
-    import tempfile
+    from reconciler.workflow.packing import make_bundle
 
-    from reconciler.workflow.bundle import create
-
-    url, branch = args.source, args.branch
-    if url is None or branch is None:
-        from reconciler.documents import load_agent
-
-        if url is None and not layout.agent_config.exists():
-            raise LpamError("which desired-state repository?",
-                            hint="pass --source URL (or run where agent.yaml names it)")
-        if layout.agent_config.exists():
-            config = load_agent(layout.agent_config)
-            url = url or config.source.url
-            branch = branch or config.source.branch
-    with tempfile.TemporaryDirectory(prefix="lpam-bundle-root-") as tmp:
-        from reconciler.workflow.machine import Machine
-
-        machine = Machine.at(Layout(Path(tmp)), network_timeout=args.network_timeout)
-        count = create(machine, url, branch or "main", args.out, report=Terminal())
+    count = make_bundle(layout, args.out, url=args.source, branch=args.branch,
+                        network_timeout=args.network_timeout, report=Terminal())
     print(f"Wrote {args.out}: the desired state and {count} repositories it pins; on the "
           f"car: `lpam sync --bundle {args.out.name}`.")
     return EXIT_OK
@@ -705,7 +618,7 @@ def cmd_pin(args: argparse.Namespace, layout: Layout) -> int:
 
     path = args.file if args.file is not None else layout.desired_state
     done = pin(_machine(args, layout), path, report=Terminal(), catalogs=args.catalogs,
-               write=not args.dry_run)
+               write=not args.dry_run, lock_timeout=args.lock_timeout)
     if not done:
         print(f"{path}: every repository is already pinned to a full commit.")
     elif args.dry_run:
@@ -728,9 +641,9 @@ def _agent_report(event: Event) -> None:
 
 
 def cmd_services(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.adapters.services.supervisor import shutdown
+    from reconciler.workflow.machine import shutdown_services
 
-    if shutdown(layout):
+    if shutdown_services(layout):
         print(f"Stopped the supervisord of {layout.root}; the apps it ran are stopped too.")
     else:
         print(f"No supervisord was running for {layout.root}.")
@@ -739,6 +652,7 @@ def cmd_services(args: argparse.Namespace, layout: Layout) -> int:
 
 def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler import status
+    from reconciler.workflow.machine import services_for
 
     services = services_for(layout, args.services)
     if args.json:
@@ -757,20 +671,13 @@ def cmd_validate(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_import(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.legacy import import_lpam
+    from reconciler.workflow.importing import import_legacy
 
-    etc_dir = args.etc_dir if args.etc_dir is not None else layout.root / "etc" / "libpanda.d"
-    text = import_lpam(etc_dir)
+    text = import_legacy(layout, args.etc_dir, output=args.output)
     if args.output is None:
         print(text, end="")
-        return EXIT_OK
-    from reconciler.atomic import write_atomic
-
-    if args.output.exists():
-        raise ConfigError("already exists; lpam will not overwrite it", path=args.output,
-                          hint="choose another -o FILE or move the existing file away")
-    write_atomic(args.output, text)
-    print(f"Wrote {args.output}; review it, then `lpam plan -f {args.output}`.")
+    else:
+        print(f"Wrote {args.output}; review it, then `lpam plan -f {args.output}`.")
     return EXIT_OK
 
 

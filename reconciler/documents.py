@@ -216,7 +216,7 @@ def load_plan(path: Path) -> Plan:
     and column, not when the step runs. (A version-1 plan's seal is checked on its
     version-1 body by its migration, migrations/plan_v1_to_v2.py.)"""
     from reconciler.loading import read_text
-    from reconciler.planning.plan import fingerprint
+    from schemas.plan import fingerprint
 
     text = read_text(path)
     hint = "pass a file written by `lpam plan --out FILE`, or use -f for a desired state"

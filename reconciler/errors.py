@@ -9,18 +9,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-MESSAGE_LIMIT = 400
+# shorten: re-exported, where adapters and vehicle/ have always imported it from
+from reconciler.text import printable
+from reconciler.text import shorten as shorten
+
 DETAIL_LINES = 20
-
-
-def shorten(text: str, limit: int = MESSAGE_LIMIT) -> str:
-    """`text` cut in the middle to at most about `limit` characters: a message that echoes
-    a 900 KB value must still be one readable line."""
-    if len(text) <= limit:
-        return text
-    keep = max(limit - 20, 20)
-    return f"{text[: keep * 3 // 4]} … ({len(text) - keep} characters left out) … " \
-        f"{text[len(text) - keep // 4:]}"
 
 
 class Terminated(BaseException):
@@ -49,7 +42,7 @@ class LpamError(Exception):
         failed app's output) indented below it, then the hint on its own line."""
         text = f"error: {self.message}"
         for line in self.details:
-            text += f"\n  | {''.join(c if c.isprintable() else '?' for c in line)}"
+            text += f"\n  | {printable(line)}"
         if self.hint:
             text += f"\n  hint: {self.hint}"
         return text

@@ -14,6 +14,10 @@ _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 _GENERATION = re.compile(r"[0-9a-f]{12}-[0-9a-f]{8}")
 _RUN = re.compile(r"[0-9a-f]{32}")
 
+KEEP_GENERATIONS = 3
+"""Good generations kept on disk for `lpam rollback` unless `--keep-generations` says
+otherwise: the installed one and the two before it."""
+
 
 @dataclass(frozen=True)
 class Layout:

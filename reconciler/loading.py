@@ -17,6 +17,7 @@ from typing import Any
 
 from reconciler.errors import ConfigError
 from reconciler.reading import read_bounded
+from reconciler.text import shorten
 
 MAX_DOCUMENT_BYTES = 1024 * 1024
 MAX_DEPTH = 64
@@ -186,10 +187,6 @@ def load(path: Path, text: str | None = None) -> Document:
     except YAMLError as exc:
         raise ConfigError(f"not valid YAML: {exc}", path=path, line=1, column=1) from None
     return Document(path=path, data=plain(tree, path), tree=tree)
-
-
-def shorten(text: str, limit: int) -> str:
-    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 MAX_NODES = 100_000

@@ -36,6 +36,10 @@ non-fast-forward push). A status branch thus holds 1 to `HISTORY` commits howeve
 car runs. Rewriting is safe there, unlike on a shared branch: only this car writes
 `status/<vehicle>`, nothing is built on it, and `lpam fleet status` reads only its tip; the
 dropped commits become unreachable and the server's garbage collection removes them.
+
+What is published (`status_file`, read back by `read_status_file`): one file, `status.json`,
+a typed and versioned document (schemas/fleet.py `CarStatus`); the files of cars that
+published before it had a version are read through its migration.
 """
 
 from __future__ import annotations
@@ -44,9 +48,17 @@ import hashlib
 import json
 from collections.abc import Mapping
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
+from reconciler.errors import ConfigError
 from schemas.agent import AgentStatus, Publication
+from schemas.fleet import CarStatus, PublishedApp
+
+STATUS_FILE = "status.json"
+"""The file a car publishes on `status/<vehicle>`."""
 
 HISTORY = 10
 """The most commits a status branch holds: the last few reports stay readable with
@@ -112,3 +124,32 @@ def keeps_parent(length: int, bound: int = HISTORY) -> bool:
     commits, 0 without one) or starts the branch afresh, so that it never holds more than
     `bound` commits."""
     return 0 < length < bound
+
+
+def status_file(status: AgentStatus, app: Mapping[str, Any] | None) -> bytes:
+    """The file a car publishes: its agent's status and what the fleet sees of its app."""
+    shown = None if app is None else PublishedApp(**{key: app.get(key) for key in APP_FIELDS})
+    body = CarStatus(agent=status, app=shown).model_dump(mode="json")
+    return (json.dumps(body, indent=2, sort_keys=True) + "\n").encode("utf-8")
+
+
+def read_status_file(content: bytes, *, where: Path) -> CarStatus | None:
+    """A car's published status, brought to the current version; None when the file is no
+    JSON at all (nothing to show), ConfigError naming `where` when it is JSON but not a
+    status this lpam reads (damaged, or a newer lpam's)."""
+    from migrations import upgrade
+
+    try:
+        data = json.loads(content)
+    except (ValueError, RecursionError):
+        return None
+    if isinstance(data, dict) and "version" not in data:
+        data = {**data, "version": 0}  # published before the file had a version
+    data = upgrade("car-status", data, path=where)
+    try:
+        return CarStatus.model_validate(data)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        field = ".".join(str(p) for p in error["loc"])
+        raise ConfigError(f"invalid car's status at {field}: {error['msg']}", path=where,
+                          hint="the car publishes a new one with its next status") from None

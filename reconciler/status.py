@@ -28,6 +28,7 @@ from reconciler.documents import parse_catalog
 from reconciler.errors import ConfigError, GitError, StoreDamagedError
 from reconciler.layout import Layout
 from reconciler.state import read_agent_status, read_record
+from reconciler.text import printable
 from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
 
 if TYPE_CHECKING:
@@ -277,7 +278,7 @@ def _cell(value: object) -> str:
         return "yes" if value else "no"
     if value is None:
         return "-"
-    text = _printable(str(value))
+    text = printable(str(value))
     return text if len(text) <= CELL_LIMIT else text[: CELL_LIMIT - 3] + "..."
 
 
@@ -291,13 +292,13 @@ def as_table(layout: Layout, *, store: Objects | None = None,
               f"{_cell(s.generation)}); `lpam apply` stops and uninstalls it before "
               "installing any app." for s in record.strays]
     strays += [f"Repository {_cell(r.repository)}: its copy in the store is damaged: "
-               f"{_printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
+               f"{printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
                "anew." for r in table if r.damage is not None]
     strays += _footer(layout, record, live, manager) + _agent_footer(layout)
     deferred = _deferred(layout)
     if deferred is not None:
         strays.append(f"Cutover deferred at {deferred['time']} (the update gates): "
-                      f"{_printable(deferred['reason'])}")
+                      f"{printable(deferred['reason'])}")
     if not table:
         return "\n".join(
             ["No app repositories. Write a desired state and run `lpam apply`.", *strays])
@@ -318,12 +319,12 @@ def _footer(layout: Layout, record: StateRecord, live: UnitState | None,
     if live is not None:
         how = live.describe() if live.known else \
             f"{live.describe()}: running is what the app's scripts reported (unverified)"
-        lines.append(f"Service manager: {manager or '?'}; {_printable(how)}")
-    lines += [_printable(line) for line in _checkouts(record)]
-    lines += [_printable(f"Held: {h['what']}; it ends {h['ends']}.") for h in holds(record)]
+        lines.append(f"Service manager: {manager or '?'}; {printable(how)}")
+    lines += [printable(line) for line in _checkouts(record)]
+    lines += [printable(f"Held: {h['what']}; it ends {h['ends']}.") for h in holds(record)]
     shown = _last_apply(layout, record)
     if shown is not None:
-        lines.append(_printable(f"Last apply: {shown}"))
+        lines.append(printable(f"Last apply: {shown}"))
     return lines + _cutover_footer(record)
 
 
@@ -394,10 +395,10 @@ def _cutover_footer(record: StateRecord) -> list[str]:
     rollback = cutover.rollback
     if rollback is not None:
         failed = rollback.failed.name if rollback.failed is not None else "the new app"
-        return [_printable(
+        return [printable(
             f"Rollback cut off: {failed} failed ({rollback.reason}) at {rollback.time}, and "
             f"the rollback to {back} did not finish: the next `lpam apply` finishes it.")]
-    return [_printable(
+    return [printable(
         f"Apply cut off mid-cutover (began {cutover.began}): the next `lpam apply` goes on "
         f"from here, and returns to {back} if the new app fails.")]
 
@@ -408,7 +409,7 @@ def _agent_footer(layout: Layout) -> list[str]:
     if agent is None:
         return []
     if "error" in agent:
-        return [f"Agent: its status file is unreadable: {_printable(agent['error'])}"]
+        return [f"Agent: its status file is unreadable: {printable(agent['error'])}"]
 
     def short(revision: object) -> str:
         return str(revision)[:12] if revision else "none"
@@ -419,8 +420,4 @@ def _agent_footer(layout: Layout) -> list[str]:
     if last is not None:
         why = f": {last['reason']}" if last.get("reason") else ""
         line += f"; last pass: {last['result']} at {last['time']}{why}"
-    return [_printable(line)]
-
-
-def _printable(text: str) -> str:
-    return "".join(c if c.isprintable() else "?" for c in text)
+    return [printable(line)]

@@ -16,6 +16,7 @@ from pydantic import BaseModel
 from schemas.agent import AgentConfig, AgentStatus
 from schemas.catalog import RawCatalog
 from schemas.desired import DesiredState
+from schemas.fleet import CarStatus
 from schemas.generation import GenerationMeta
 from schemas.plan import Plan
 from schemas.record import StateRecord
@@ -28,6 +29,7 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "generation-meta.v1.schema.json": GenerationMeta,
     "agent.v1.schema.json": AgentConfig,
     "agent-status.v2.schema.json": AgentStatus,
+    "car-status.v1.schema.json": CarStatus,
 }
 FOLDER = Path(__file__).resolve().parent / "json"
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -223,11 +223,6 @@ Step = Annotated[
 a mistyped field is refused when the plan is loaded."""
 
 
-def seal(body: dict[str, Any]) -> str:
-    """The fingerprint of a plan's body (planning/plan.py says what it covers)."""
-    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
-
-
 class Plan(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -248,3 +243,17 @@ class Plan(BaseModel):
     @property
     def has_changes(self) -> bool:
         return any(c.action is not Action.NOOP for c in self.changes)
+
+
+def fingerprint(plan: Plan) -> str:
+    """The plan's seal: over what drives behaviour (the record it was made against and the
+    steps), never display text, so a reworded reason does not invalidate a plan while an
+    edited step does."""
+    body = {
+        "format_version": plan.format_version,
+        "offline": plan.offline,
+        "lineage": plan.lineage,
+        "serial": plan.serial,
+        "steps": [s.model_dump(mode="json") for s in plan.steps],
+    }
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()

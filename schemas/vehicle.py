@@ -16,14 +16,14 @@ gates:                         # opt-in: without it nothing is gated
 
 While an app runs it owns the panda (USB, exclusive), so lpam reads the speed from the
 recording the app keeps writing, by default; a CAN HAT (socketcan) or a socketcand server
-can be read directly. A signal is defined as a DBC line writes it; `vehicle.signal` decodes
-it. Gates are checked at the boundary between preparation and cutover (reconciler/adapters/gate.py).
+can be read directly. A signal is defined as a DBC line writes it (schemas/signal.py);
+`vehicle.signal` decodes it, and adapters/can/dbc.py reads one out of a DBC file. Gates are
+checked at the boundary between preparation and cutover (reconciler/adapters/gate.py).
 """
 
 from __future__ import annotations
 
 import re
-from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import (
@@ -36,7 +36,7 @@ from pydantic import (
     model_validator,
 )
 
-from reconciler.vehicle.signal import RAV4_SPEED, SignalDef, check
+from schemas.signal import RAV4_SPEED, SignalDef, check
 
 DEFAULT_FOLLOW = "/etc/libpanda.d/currentCan.csv"
 DEFAULT_STALE_SECONDS = 10.0  # the RAV4 sends SPEED ~1.6 times a second, with gaps up to 6 s
@@ -163,17 +163,6 @@ class SignalSpec(BaseModel):
         return SignalDef(frame_id=self.id, start_bit=self.start_bit, length=self.length,
                          byte_order=self.byte_order, signed=self.signed, scale=self.scale,
                          offset=self.offset, name="speed")
-
-    def definition(self, base_dir: Path) -> SignalDef:
-        """The decodable signal; a DBC file is read now (ConfigError if it cannot be)."""
-        if self.dbc is None:
-            return self.inline()
-        from reconciler.vehicle.signal import from_dbc
-
-        assert self.signal is not None
-        path = Path(self.dbc)
-        return from_dbc(path if path.is_absolute() else base_dir / path,
-                        message=self.message, signal=self.signal)
 
 
 def _rav4_speed() -> SignalSpec:

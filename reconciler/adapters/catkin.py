@@ -36,16 +36,11 @@ from pathlib import Path
 from typing import Literal
 
 from reconciler.adapters.command import run_streamed
-from reconciler.adapters.scripts import DEFAULT_PATH
 from reconciler.atomic import fsync_dir, write_atomic
 from reconciler.errors import DETAIL_LINES, DependencyError
-from reconciler.execution.ports import Log
+from reconciler.execution.ports import DEFAULT_PATH, SOURCE_THEN_EXEC, Log
 
 MARKER = ".lpam-built"
-SOURCE_THEN_EXEC = 'source "$1" || exit 1; shift; exec "$@"'
-"""Runs a command inside a ROS environment (a setup.bash), from an argument list: the setup
-file and the command are the shell's arguments, never part of its code. Builds use it with
-the underlay, and launch units (execution/supervision.py) with their build's devel space."""
 _KEY = re.compile(r"[0-9a-f]{8,64}")
 _USER = re.compile(r"[a-z_][a-z0-9_-]*\$?")
 _CONTEXT = 2  # lines shown before the first error line: the compiler's "In function …"

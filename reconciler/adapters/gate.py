@@ -25,6 +25,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from reconciler.adapters.can.dbc import speed_definition
 from reconciler.errors import ConfigError, Deferred, VehicleSourceError
 from reconciler.layout import Layout
 from reconciler.vehicle.motion import Motion, Tracker
@@ -123,7 +124,7 @@ class _Watch:
         self._short = 0
         self.description = _describe(vehicle)
         try:
-            self._signal = vehicle.speed.definition(gate.base_dir)
+            self._signal = speed_definition(vehicle.speed, gate.base_dir)
             self._source = open_vehicle_source(gate.vehicle, layout=gate.layout,
                                                base_dir=gate.base_dir,
                                                ids=[self._signal.frame_id])
@@ -137,7 +138,11 @@ class _Watch:
         if self._source is None:
             return
         gates, vehicle = self._gate.gates, self._gate.vehicle
-        self._feed(self._source.backlog(gates.stationary_seconds + vehicle.stale_seconds))
+        try:
+            self._feed(self._source.backlog(gates.stationary_seconds + vehicle.stale_seconds))
+        except VehicleSourceError as exc:  # the recording cannot be read: no signal, why
+            self._problem = exc.message
+            return
         if vehicle.source.bus is not None:
             listen = min(FIRST_LISTEN, vehicle.stale_seconds)
             self.listen(self._gate.monotonic() + listen, until_speed=True)

@@ -61,8 +61,10 @@ from reconciler.errors import (
     RefNotFoundError,
     StoreDamagedError,
 )
+from reconciler.execution.ports import READ_LIMIT, ambiguous
 from reconciler.layout import Layout, slug
 from reconciler.reading import MIB
+from reconciler.text import escaped
 from schemas.names import is_hex_commit, redact
 
 BLOBS_LIMIT = 10_000  # files in one app folder; more is not an app folder to compare
@@ -71,12 +73,9 @@ BLOBS_LIMIT = 10_000  # files in one app folder; more is not an app folder to co
 # no-op plan of pinned repositories reads the store only and should not pay for the network
 # stack.
 
-__all__ = ["GitStore", "RemoteRefs"]
+__all__ = ["READ_LIMIT", "GitStore", "RemoteRefs"]
 
 _MARKER = "lpam-checkout"
-READ_LIMIT = 4 * MIB
-"""The most `read_file` returns: app catalogs and parameter files are a few KiB, and a
-blob read whole into memory must not be able to exhaust the Pi's."""
 FILE_LIMIT = 100 * MIB
 """The largest file lpam writes out of git. dulwich inflates a blob whole in memory to
 write it, so a 600 MB file would exhaust a Pi's; GitHub refuses files over 100 MiB too,
@@ -144,11 +143,7 @@ class GitStore:
             )
             commits = [sha for sha in found if _commit(repo, sha) is not None]
         if len(commits) > 1:
-            raise RefNotFoundError(
-                f"{key}: the abbreviated hash '{ref}' matches {len(commits)} commits: "
-                + ", ".join(commits),
-                hint="give more digits of the commit hash",
-            )
+            raise ambiguous(key, ref, commits)
         return commits[0] if commits else None
 
     def local_edits(self, key: str) -> list[str]:
@@ -742,7 +737,7 @@ def _unsafe_path(repo: Repo, commit: Commit) -> str | None:
 def _printable(path: bytes) -> str:
     """`path` for a one-line message: control characters escaped, never interpreted."""
     text = path.decode("utf-8", "replace")
-    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+    return escaped(text)
 
 
 def _edits(repo: Repo) -> list[str]:

@@ -48,6 +48,7 @@ from pathlib import Path
 from types import TracebackType
 
 from reconciler.errors import LpamError, shorten
+from reconciler.text import printable
 
 PROC = Path("/proc")
 UNKNOWN_COMMAND = "?"
@@ -158,7 +159,7 @@ def command_of(pid: int, *, proc: Path = PROC) -> str:
     if not words:  # a zombie, or a kernel thread
         return UNKNOWN_COMMAND
     text = " ".join(words)
-    return "".join(c if c.isprintable() else "?" for c in shorten(text, COMMAND_LIMIT))
+    return printable(shorten(text, COMMAND_LIMIT))
 
 
 class UpdateLocks:

@@ -25,9 +25,10 @@ from reconciler.errors import (
     StepError,
     StoreDamagedError,
 )
-from reconciler.execution.ports import Log
+from reconciler.execution.ports import HEADS, READ_LIMIT, Log, RemoteRefs, ambiguous
 from reconciler.layout import Layout, slug
 from reconciler.vehicle.policy import GateState
+from schemas.names import is_hex_commit
 
 Folder = tuple[str, dict[str, str]]  # (tree hash, file name → text)
 
@@ -46,6 +47,8 @@ class MemoryStore:
     fetches: int = 0
     damaged: dict[str, str] = field(default_factory=dict)
     aside: dict[str, tuple[str, str | None]] = field(default_factory=dict)
+    advertised: dict[str, RemoteRefs] = field(default_factory=dict)  # url → its refs
+    seen: dict[str, RemoteRefs] = field(default_factory=dict)  # key → the last fetch's
 
     def origin_url(self, key: str) -> str | None:
         return self.checkouts[key][0] if key in self.checkouts else None
@@ -96,6 +99,51 @@ class MemoryStore:
             self.layout.repository_dir(key).mkdir(parents=True, exist_ok=True)
         self.fetched[key] = set(self.remotes[url])
         self.checkouts[key] = (url, self.head(key))
+        self.seen[key] = self.ls_remote(url)
+
+    def fetch_objects(self, key: str, url: str) -> None:
+        """Commits of `url` for a plan to read, moving no checkout; a checkout of another
+        origin keeps its origin (the twin reads files of its origin's commits only)."""
+        if key not in self.checkouts or self.origin_url(key) == url:
+            self.fetch(key, url)
+            return
+        if url not in self.remotes:
+            raise GitError(f"{key}: cannot reach {url}")
+        self.fetches += 1
+        self.fetched[key] |= set(self.remotes[url])
+
+    def ls_remote(self, url: str) -> RemoteRefs:
+        if url not in self.remotes:
+            raise GitError(f"cannot reach {url}")
+        return self.advertised.get(url, RemoteRefs(url=url, refs={}, default_branch=None))
+
+    def local_refs(self, key: str) -> RemoteRefs | None:
+        """What the last fetch saw of the origin's branches and tags, without network."""
+        if key not in self.checkouts:
+            return None
+        seen = self.seen.get(key)
+        refs = {} if seen is None else dict(seen.refs)
+        default = next((b for b in ("main", "master") if HEADS + b in refs), None)
+        return RemoteRefs(url=self.checkouts[key][0], refs=refs, default_branch=default)
+
+    def resolve_local(self, key: str, ref: str) -> str | None:
+        """An abbreviated hash expanded against the commits already fetched."""
+        ref = ref.lower()
+        if not is_hex_commit(ref):
+            return None
+        self._readable(key)
+        commits = sorted(c for c in self.fetched.get(key, set()) if c.startswith(ref))
+        if len(commits) > 1:
+            raise ambiguous(key, ref, commits)
+        return commits[0] if commits else None
+
+    def folder_tree(self, key: str, commit: str, folder: str) -> str | None:
+        url = self.origin_url(key)
+        found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
+        return None if found is None or not self.has_commit(key, commit) else found[0]
+
+    def location(self, key: str) -> Path:
+        return self.layout.repository_dir(key) if self.layout is not None else Path(key)
 
     def checkout(self, key: str, commit: str) -> None:
         self._readable(key)
@@ -112,14 +160,19 @@ class MemoryStore:
         self.checkouts.pop(key, None)
         self.fetched.pop(key, None)
 
-    def read_file(self, key: str, commit: str, path: str) -> bytes | None:
-        """A file of a folder (`folder/name`); files outside folders are not modelled."""
+    def read_file(self, key: str, commit: str, path: str, *,
+                  limit: int = READ_LIMIT) -> bytes | None:
+        """A file of a folder (`folder/name`, a top-level file in folder ""); GitError when
+        it is larger than `limit`, as the real store."""
         url = self.origin_url(key)
         folder, _, name = path.rpartition("/")
         found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
         if found is None or not self.has_commit(key, commit) or name not in found[1]:
             return None
-        return found[1][name].encode("utf-8")
+        data = found[1][name].encode("utf-8")
+        if len(data) > limit:
+            raise GitError(f"{key}: '{path}' is {len(data)} bytes, over {limit}")
+        return data
 
     def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
         url = self.origin_url(key)

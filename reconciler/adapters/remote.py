@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import os
 import stat
-from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlparse
 
@@ -27,37 +26,14 @@ from dulwich.refs import Ref
 from dulwich.repo import Repo
 
 from reconciler.errors import GitError, PushRefusedError
-from schemas.names import is_hex_commit, redact
+from reconciler.execution.ports import RemoteRefs as RemoteRefs
+from schemas.names import redact
 
 _HEADS = "refs/heads/"
 _TAGS = "refs/tags/"
 _PEELED = "^{}"
 _SCHEMES = ("git", "http", "https", "ssh", "file")
 _NETWORK_HINT = "check the URL and the network; nothing on the machine was changed"
-
-
-@dataclass(frozen=True)
-class RemoteRefs:
-    """What a remote advertises: branch and tag tips (tags peeled to their commit)."""
-
-    url: str
-    refs: dict[str, str]
-    default_branch: str | None
-
-    def resolve(self, ref: str | None) -> str | None:
-        """The commit `ref` names on the remote, or None.
-
-        Short names are tried as a tag before a branch, the order `git rev-parse` uses, so
-        that lpam and a user's git agree on an ambiguous name.
-        """
-        if ref is None:
-            return self.refs.get(_HEADS + self.default_branch) if self.default_branch else None
-        for name in (ref, _TAGS + ref, _HEADS + ref):
-            if name.startswith("refs/") and name in self.refs:
-                return self.refs[name]
-        if len(ref) == 40 and is_hex_commit(ref) and ref in self.refs.values():
-            return ref
-        return None
 
 
 class Transport:

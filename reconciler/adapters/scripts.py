@@ -31,10 +31,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from reconciler.errors import StepError
+from reconciler.execution.ports import DEFAULT_PATH
 from reconciler.reading import open_append
 
 PASSED_THROUGH = ("PATH", "HOME", "LANG", "LC_ALL", "TERM", "USER", "LOGNAME", "TZ")
-DEFAULT_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
 GRACE_SECONDS = 5.0
 
 # $1: exit-code file, $2: lock descriptor to keep from the script ("" for none), rest: command.

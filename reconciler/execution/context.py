@@ -11,6 +11,7 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
+from pathlib import Path
 
 from reconciler.errors import StateWriteError, StepError
 from reconciler.execution.ports import (
@@ -52,6 +53,9 @@ class Context:
     listener: Listener | None = None  # the vehicle's bus, for `health.can`
     command: str = "lpam apply"  # what a user runs to resume this one (said in errors)
     desired: DesiredRef | None = None  # what this apply works toward (holds hold against it)
+    # The ROS distribution's setup file a launch app without a build of its own runs inside
+    # (None: roslaunch is on PATH already); the caller that chooses adapters gives the probe.
+    underlay: Callable[[], Path | None] = field(default=lambda: None)
 
     def dependencies(self) -> DependencyPorts:
         if self.deps is None:  # a caller that plans dependencies must give their ports

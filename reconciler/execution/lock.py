@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from reconciler.errors import LockError
 from reconciler.flock import wait_exclusive
 from reconciler.layout import Layout
+from reconciler.text import printable
 
 POLL_SECONDS = 0.1
 NOTE_LIMIT = 512
@@ -68,7 +69,7 @@ def _open(layout: Layout) -> int:
 
 def _holder(fd: int) -> str:
     text = os.pread(fd, NOTE_LIMIT, 0).decode(errors="replace").strip()
-    return "".join(c if c.isprintable() else "?" for c in text)
+    return printable(text)
 
 
 def _busy_message(holder: str, layout: Layout) -> LockError:

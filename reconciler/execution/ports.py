@@ -13,10 +13,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
+from reconciler.errors import RefNotFoundError
 from reconciler.unit import Unit, UnitState
+from schemas.names import is_hex_commit
 
 if TYPE_CHECKING:
     from reconciler.vehicle.policy import GateState
+
+DEFAULT_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
+"""The PATH a script, a build or a unit runs with when lpam's own has none: part of the
+contract between the steps that describe a program and the adapters that run it."""
+
+SOURCE_THEN_EXEC = 'source "$1" || exit 1; shift; exec "$@"'
+"""Runs a command inside a ROS environment (a setup.bash), from an argument list: the setup
+file and the command are the shell's arguments, never part of its code. Builds use it with
+the underlay (adapters/catkin.py), and launch units (execution/supervision.py) with their
+build's devel space."""
 
 
 class Store(Protocol):
@@ -60,6 +72,69 @@ class Store(Protocol):
         Blob ids name content only, so a copy of the folder on disk can be told equal
         whatever its files' modes (adopting an app LPAM installed)."""
         ...
+
+
+READ_LIMIT = 4 * 1024 * 1024
+"""The most a store's `read_file` returns: app catalogs and parameter files are a few KiB,
+and a blob read whole into memory must not be able to exhaust the Pi's."""
+
+HEADS = "refs/heads/"
+TAGS = "refs/tags/"
+
+
+@dataclass(frozen=True)
+class RemoteRefs:
+    """What a remote advertises: branch and tag tips (tags peeled to their commit)."""
+
+    url: str
+    refs: dict[str, str]
+    default_branch: str | None
+
+    def resolve(self, ref: str | None) -> str | None:
+        """The commit `ref` names on the remote, or None.
+
+        Short names are tried as a tag before a branch, the order `git rev-parse` uses, so
+        that lpam and a user's git agree on an ambiguous name.
+        """
+        if ref is None:
+            return self.refs.get(HEADS + self.default_branch) if self.default_branch else None
+        for name in (ref, TAGS + ref, HEADS + ref):
+            if name.startswith("refs/") and name in self.refs:
+                return self.refs[name]
+        if len(ref) == 40 and is_hex_commit(ref) and ref in self.refs.values():
+            return ref
+        return None
+
+
+class Resolving(Store, Protocol):
+    """The store as resolving a desired state's refs to commits asks it (observe/targets.py):
+    what a remote advertises, what the last fetch saw, abbreviated hashes expanded, objects
+    fetched without moving a checkout, and a folder's tree. GitStore and MemoryStore both
+    implement it, held to one contract (tests/contract/test_store.py)."""
+
+    def location(self, key: str) -> Path: ...
+
+    def read_file(self, key: str, commit: str, path: str, *,
+                  limit: int = READ_LIMIT) -> bytes | None:
+        """The regular file `commit:path`, at most `limit` bytes (GitError beyond)."""
+        ...
+
+    def fetch_objects(self, key: str, url: str) -> None: ...
+
+    def ls_remote(self, url: str) -> RemoteRefs: ...
+
+    def local_refs(self, key: str) -> RemoteRefs | None: ...
+
+    def resolve_local(self, key: str, ref: str) -> str | None: ...
+
+    def folder_tree(self, key: str, commit: str, folder: str) -> str | None: ...
+
+
+def ambiguous(key: str, ref: str, commits: Sequence[str]) -> RefNotFoundError:
+    """What every store raises when an abbreviated hash names several commits."""
+    return RefNotFoundError(
+        f"{key}: the abbreviated hash '{ref}' matches {len(commits)} commits: "
+        + ", ".join(commits), hint="give more digits of the commit hash")
 
 
 class Scripts(Protocol):

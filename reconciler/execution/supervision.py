@@ -13,10 +13,9 @@ import getpass
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from reconciler.adapters.catkin import SOURCE_THEN_EXEC, find_underlay
-from reconciler.adapters.scripts import DEFAULT_PATH
-from reconciler.errors import HealthError, StepError
+from reconciler.errors import HealthError, ServiceError, StepError
 from reconciler.execution.context import Context
+from reconciler.execution.ports import DEFAULT_PATH, SOURCE_THEN_EXEC
 from reconciler.generations import Generation
 from reconciler.planning.model import app_folder
 from reconciler.unit import Unit, UnitState, unit_name
@@ -52,7 +51,7 @@ def runtime(ctx: Context, gen: Generation) -> Runtime:
     elif gen.launch is not None:
         # no build of its own: roslaunch comes from the ROS distribution, whose setup puts
         # it on PATH (/opt/ros/noetic/bin on the Pi; Debian's own is in /usr/bin already)
-        setup = find_underlay()
+        setup = ctx.underlay()
     return Runtime(env, setup)
 
 
@@ -115,12 +114,14 @@ def await_unit(ctx: Context, app: str, unit: str, *, active: bool, script: str |
 
 def log_tail(ctx: Context, unit: str | None) -> list[str]:
     """The unit's last lines of output, for the error that explains its failure; logs
-    are a courtesy there, so failing to read them is not an error of its own."""
+    are a courtesy there, so the service manager failing to give them (ServiceError, or a
+    log file that cannot be read) is not an error of its own. Anything else is a bug in
+    lpam and raises: it must not pass for an app with no output."""
     if unit is None:
         return []
     try:
         lines = ctx.services.logs(unit, LOG_LINES)
-    except Exception:
+    except (ServiceError, OSError):
         return []
     return [f"{unit}: {line}" for line in lines[-LOG_LINES:]]
 

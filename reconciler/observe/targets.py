@@ -50,7 +50,7 @@ from schemas.names import is_hex_commit, redact
 from schemas.service import DEFAULT_HEALTH_TIMEOUT, DEFAULT_SETTLE_SECONDS, Health
 
 if TYPE_CHECKING:
-    from reconciler.adapters.git import GitStore
+    from reconciler.execution.ports import Resolving
 
 FETCH_WORKERS = 4
 ROS_KEY_PREFIX = "@ros/"  # store keys of ROS repositories: never an app repository's key
@@ -71,7 +71,7 @@ Notice = Callable[[str], None]
 
 
 def resolve(
-    desired: DesiredState, *, base_dir: Path, store: GitStore, fetch: Fetch,
+    desired: DesiredState, *, base_dir: Path, store: Resolving, fetch: Fetch,
     default_user: str | None = None, root: Path = Path("/"), notice: Notice = lambda _: None,
 ) -> Targets:
     """Desired state → Targets; raises before any change if a ref does not exist.
@@ -110,7 +110,7 @@ def _parallel(work: Callable[[_In], _Out], items: Sequence[_In], fetch: Fetch) -
     return [work(item) for item in items]
 
 
-def _bring(store: GitStore, key: str, url: str, fetch: Fetch) -> None:
+def _bring(store: Resolving, key: str, url: str, fetch: Fetch) -> None:
     if fetch is Fetch.CHECKOUT:
         store.fetch(key, url)
     elif fetch is Fetch.OBJECTS:
@@ -118,14 +118,14 @@ def _bring(store: GitStore, key: str, url: str, fetch: Fetch) -> None:
 
 
 def _resolve_repo(
-    spec: RepositorySpec, base_dir: Path, store: GitStore, fetch: Fetch, desired: DesiredState,
+    spec: RepositorySpec, base_dir: Path, store: Resolving, fetch: Fetch, desired: DesiredState,
     notice: Notice,
 ) -> RepoTarget:
     return _resolve_ref(spec.key, desired.mirrored(spec.source(base_dir)), spec.ref, store,
                         fetch, notice)
 
 
-def sound_copy(store: GitStore, key: str, url: str, *, renew: bool, notice: Notice) -> None:
+def sound_copy(store: Resolving, key: str, url: str, *, renew: bool, notice: Notice) -> None:
     """Make sure the key's copy in the store is sound before anything reads it: a damaged
     copy is fetched anew from `url` when `renew` (apply), else refused (a plan changes
     nothing); see execution/cache.py."""
@@ -139,7 +139,7 @@ def sound_copy(store: GitStore, key: str, url: str, *, renew: bool, notice: Noti
     notice(cache.renew(store, key, url, found))
 
 
-def _resolve_ref(key: str, url: str, ref: str | None, store: GitStore,
+def _resolve_ref(key: str, url: str, ref: str | None, store: Resolving,
                  fetch: Fetch, notice: Notice) -> RepoTarget:
     """The commit `ref` names in the repository at `url` (stored as `key`): a hash stays,
     a branch or tag follows its tip, none follows the default branch."""
@@ -187,7 +187,7 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: GitStore,
 NO_CATALOG = Catalog()  # what a commit without libpanda-apps.yaml offers: nothing
 
 
-def _catalog(store: GitStore, repo: RepoTarget) -> Catalog | None:
+def _catalog(store: Resolving, repo: RepoTarget) -> Catalog | None:
     """The repository's app catalog at its target commit; None when not fetched yet,
     NO_CATALOG when the commit has no libpanda-apps.yaml. A commit's content is the same
     whichever remote brought it, so the origin of the checkout does not matter here."""
@@ -201,7 +201,7 @@ def _catalog(store: GitStore, repo: RepoTarget) -> Catalog | None:
 
 
 def _resolve_app(
-    desired: DesiredState, repos: list[RepoTarget], store: GitStore, default_user: str | None,
+    desired: DesiredState, repos: list[RepoTarget], store: Resolving, default_user: str | None,
     fetch: Fetch, workspace: WorkspaceTarget, notice: Notice, bare_keys: set[str],
 ) -> AppTarget:
     spec = desired.app
@@ -265,7 +265,7 @@ def _resolve_app(
 
 
 def _app_target(
-    spec: AppSpec, repo: RepoTarget, entry: CatalogApp, tree: str, store: GitStore,
+    spec: AppSpec, repo: RepoTarget, entry: CatalogApp, tree: str, store: Resolving,
     default_user: str | None,
 ) -> AppTarget:
     """The desired app as it will run: how (scripts or a unit lpam writes), as whom, and
@@ -305,7 +305,7 @@ def _app_target(
     )
 
 
-def _deps(desired: DesiredState, entry: CatalogApp, store: GitStore, fetch: Fetch,
+def _deps(desired: DesiredState, entry: CatalogApp, store: Resolving, fetch: Fetch,
           workspace: WorkspaceTarget, notice: Notice) -> Deps:
     """The app's apt packages, pip requirements and ROS repositories, the latter resolved
     to commits by the same rules as app repositories (through the desired mirrors)."""

@@ -33,6 +33,7 @@ from __future__ import annotations
 from reconciler.planning.model import UNKNOWN, AppTarget, GenerationKey, HealthTarget
 from reconciler.unit import UnitState
 from schemas.generation import AppGeneration, GenerationFields, StrayGeneration
+from schemas.operator import OperatorAction
 from schemas.plan import (
     AdoptStep,
     ConfigureStep,
@@ -293,7 +294,7 @@ def refreshed(record: StateRecord, live: UnitState | None,
     return record.model_copy(update={"app": app.model_copy(update={"status": status})})
 
 
-def operator_steps(record: StateRecord, action: str,
+def operator_steps(record: StateRecord, action: OperatorAction,
                    generations: frozenset[GenerationKey]) -> list[Step]:
     """`lpam start|stop|restart` on the installed app, by the same rules as any plan: a
     script that was cut off is finished first, and nothing is started beside a stray."""
@@ -301,9 +302,9 @@ def operator_steps(record: StateRecord, action: str,
     if app is None:
         return []
     current = target_of(app)
-    if action == "stop":
+    if action == OperatorAction.STOP:
         return app_steps(record, current, generations, start=False)
-    if action == "restart" and app.status in ("running", "starting"):
+    if action == OperatorAction.RESTART and app.status in ("running", "starting"):
         record = record.model_copy(update={"app": app.model_copy(update={"status": "stopping",
                                                                       "held": False})})
     else:

@@ -1,8 +1,8 @@
 """Assemble, seal and check a plan: the only input `apply` executes.
 
-The fingerprint covers what drives behaviour (the record it was made against and the
-steps), never display text, so a reworded reason does not invalidate a plan while an
-edited step does.
+The fingerprint (schemas/plan.py, where the loader checks it too) covers what drives
+behaviour (the record it was made against and the steps), never display text, so a
+reworded reason does not invalidate a plan while an edited step does.
 """
 
 from __future__ import annotations
@@ -14,8 +14,10 @@ from reconciler.planning.diff import diff
 from reconciler.planning.graph import steps_for
 from reconciler.planning.model import UNKNOWN, Observed, Targets
 from schemas.generation import AppGeneration, StrayGeneration
-from schemas.plan import Action, BuildStep, Change, CheckoutStep, Plan, Step, seal
+from schemas.plan import Action, BuildStep, Change, CheckoutStep, Plan, Step, fingerprint
 from schemas.record import StateRecord
+
+__all__ = ["check_plan", "fingerprint", "make_plan", "sealed", "unknown_values"]
 
 
 def make_plan(
@@ -57,17 +59,6 @@ def sealed(record: StateRecord, changes: list[Change], steps: list[Step], *, now
                 lineage=record.lineage, serial=record.serial, changes=changes, steps=steps,
                 summary=summary)
     return plan.model_copy(update={"fingerprint": fingerprint(plan)})
-
-
-def fingerprint(plan: Plan) -> str:
-    return seal({
-        "format_version": plan.format_version,
-        "offline": plan.offline,
-        "lineage": plan.lineage,
-        "serial": plan.serial,
-        "steps": [s.model_dump(mode="json") for s in plan.steps],
-    })
-
 
 _MUST_KNOW = ("repository", "commit", "path", "tree", "generation")
 

@@ -1,2 +1,11 @@
-"""Use cases written once for every caller (the CLI today; the agent and the Bluetooth
-service later): each takes its ports and a progress callback, and returns what happened."""
+"""Use cases written once for every caller (the CLI today; the agent, the Bluetooth
+service and the `libpanda-app-manager` shim later): each takes its ports and a report
+callback, and returns what happened. Every rule — the lock, the gates, holds, defaults —
+is here, never in a caller.
+
+plan: planning.plan_file / plan · apply: applying.apply_file / apply / apply_saved ·
+start|stop|restart: operate.operate_installed · rollback: operate.roll_back ·
+gates in force and now: gates · history: history · logs: logs · sync and agent: agent
+(one_pass, Agent), sync · bundle: packing, bundle · pin: pin · fleet: fleet ·
+import-lpam: importing · status: reconciler/status.py · defaults: defaults.
+"""

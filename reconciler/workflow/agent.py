@@ -13,8 +13,10 @@ from __future__ import annotations
 import random
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
+from reconciler.layout import Layout
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
@@ -32,6 +34,23 @@ def next_wait(interval: float, failures: int, draw: float) -> float:
     return float(interval * factor * (1 - JITTER + 2 * JITTER * draw))
 
 
+def settings(layout: Layout, file: Path | None) -> AgentConfig:
+    """The agent's settings: `file`, else agent.yaml under the root."""
+    from reconciler.documents import load_agent
+
+    return load_agent(file if file is not None else layout.agent_config)
+
+
+def one_pass(machine: Machine, config: AgentConfig, *, options: ApplyOptions,
+             wait: float | None, report: Report, fetch_only: bool = False,
+             bundle: Path | None = None) -> Synced:
+    """`lpam sync`: one pass (workflow/sync.py); closed gates are waited for `wait`
+    seconds, else as long as the settings say (`gate_wait_seconds`)."""
+    return sync(machine, config, report=report, fetch_only=fetch_only, bundle=bundle,
+                options=replace(options, wait=config.gate_wait_seconds if wait is None
+                                else wait))
+
+
 @dataclass
 class Agent:
     """Runs passes until `stop` is set. `wait` sleeps until a timeout or the stop, and says
@@ -47,6 +66,13 @@ class Agent:
 
     def __post_init__(self) -> None:
         self.machine.stop_requested = self.stop.is_set
+
+    @classmethod
+    def following(cls, machine: Machine, config: AgentConfig, *, options: ApplyOptions,
+                  report: Report) -> Agent:
+        """The agent of `lpam agent`: its passes wait for closed gates as its settings say."""
+        return cls(machine, config, report=report,
+                   options=replace(options, wait=config.gate_wait_seconds))
 
     def wait(self, seconds: float) -> bool:
         return self.stop.wait(seconds)
@@ -68,16 +94,20 @@ class Agent:
         return 0
 
 
-def install_agent(machine: Machine, command: list[str], *, config: str | None = None,
-                  report: Report) -> list[str]:
+def install_agent(machine: Machine, command: list[str], *, config_file: Path | None,
+                  report: Report) -> tuple[list[str], AgentConfig]:
     """Write the agent's systemd units (adapters/services/agentunits.py); where systemd
-    runs, enable and start them. Returns the unit files written."""
+    runs, enable and start them. The settings (`config_file`, else agent.yaml) must be
+    valid first, so a car is never set to follow a source it cannot read. Returns the unit
+    files written and the settings they follow."""
     from reconciler.adapters.services.agentunits import agent_units
     from reconciler.adapters.services.systemd import SystemdServices
     from reconciler.atomic import write_atomic
     from reconciler.workflow.events import Note
 
-    units = agent_units(command, config)
+    config = settings(machine.layout, config_file)
+    other = str(config_file.resolve()) if config_file is not None else None
+    units = agent_units(command, other)
     written = []
     for name, text in units.items():
         path = machine.layout.systemd_units / f"{name}.service"
@@ -89,4 +119,4 @@ def install_agent(machine: Machine, command: list[str], *, config: str | None = 
     if not isinstance(machine.services, SystemdServices):
         report(Note("systemd does not run the apps here: the units were written, not "
                     "enabled (`lpam agent` can run in a terminal instead)"))
-    return written
+    return written, config

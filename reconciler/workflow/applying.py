@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.errors import LpamError
+from reconciler.layout import KEEP_GENERATIONS
+from reconciler.workflow.defaults import LOCK_TIMEOUT, SCRIPT_TIMEOUT
 from reconciler.workflow.events import Planned, Progress, Report
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.planning import prepare
@@ -28,12 +30,16 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class ApplyOptions:
-    lock_timeout: float = 10.0
-    script_timeout: float = 600.0  # an app script running longer is killed
-    keep_generations: int = 3  # good generations kept on disk for `lpam rollback`
+    lock_timeout: float | None = None  # None: each lock's own default (workflow.defaults)
+    script_timeout: float = SCRIPT_TIMEOUT  # an app script running longer is killed
+    keep_generations: int = KEEP_GENERATIONS  # good generations kept for `lpam rollback`
     release: bool = False  # end a rollback's hold first
     wait: float = 0.0  # seconds the cutover may wait for closed gates to open
     resume: str = "lpam apply"  # the command that resumes it, as the user would type it
+
+    def lock_wait(self, default: float = LOCK_TIMEOUT) -> float:
+        """How long to wait for the apply lock: `--lock-timeout`, else `default`."""
+        return default if self.lock_timeout is None else self.lock_timeout
 
 
 @dataclass(frozen=True)
@@ -57,7 +63,7 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
     from reconciler.observe.targets import Fetch
     from reconciler.planning.plan import unknown_values
 
-    with apply_lock(machine.layout, timeout=options.lock_timeout) as lock:
+    with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         if options.release:
             _release(machine, report)
         fetch = Fetch.OFFLINE if local else Fetch.CHECKOUT
@@ -79,6 +85,17 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
                             desired=desired_ref(desired, path))
 
 
+def apply_file(machine: Machine, path: Path, *, options: ApplyOptions,
+               confirm: Callable[[Plan], bool], report: Report) -> Applied:
+    """`lpam apply [-f FILE]`: the desired state at `path` read — refused before the lock,
+    while the network helper starts — then applied as `apply` does."""
+    from reconciler.documents import load_desired
+
+    machine.warm_network()
+    desired = load_desired(path)
+    return apply(machine, path, desired, options=options, confirm=confirm, report=report)
+
+
 def desired_ref(desired: DesiredState, path: Path) -> DesiredRef:
     """What an apply records it works toward: holds are held against its content."""
     from reconciler.workflow.operate import desired_fingerprint
@@ -94,15 +111,18 @@ def finishes_rollback(made: Plan) -> bool:
 
 
 def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOptions,
-                report: Report, gate: Gate | None = None,
-                listener: Listener | None = None) -> Applied:
+                report: Report) -> Applied:
     """`lpam apply PLANFILE`: refused when it is stale, edited, offline or inexact. A plan
-    holds no gates: `gate` and `listener` are the desired state's, which the caller read."""
+    holds no gates: it obeys those of the desired state in force (workflow/gates.py), read
+    here before the lock, so that no caller can run one ungated by forgetting them."""
     from reconciler.execution.lock import apply_lock
     from reconciler.planning.plan import check_plan
     from reconciler.state import read_record
+    from reconciler.workflow.gates import governing
 
-    with apply_lock(machine.layout, timeout=options.lock_timeout) as lock:
+    gates = governing(machine, None)
+    gate, listener = gates.gate, gates.listener
+    with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         record = read_record(machine.layout)
         check_plan(saved, lineage=record.lineage, serial=record.serial, source=source)
         return execute_plan(machine, machine.store(), saved, lock, options=options,

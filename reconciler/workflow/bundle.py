@@ -3,36 +3,30 @@
 `create` (on a laptop with network) fetches the desired-state repository's branch, reads
 every desired state in it (`desired-state.yaml`, `vehicles/*.yaml`), resolves each to the
 commits of its app and ROS repositories, and writes one git bundle (dulwich's bundle
-support) holding all their objects, with refs for the branch and each pinned commit, and a
-manifest blob saying which commit belongs to which repository (URL, store key, the ref it
-resolved). Git's objects are content-addressed, so one pack holds many repositories.
+support, behind adapters/bundle.py) holding all their objects, with refs for the branch and
+each pinned commit, and a manifest blob saying which commit belongs to which repository
+(URL, store key, the ref it resolved). Git's objects are content-addressed, so one pack
+holds many repositories.
 
 `unpack` (on the car, no network) reads the bundle into the store as if each repository
 had been fetched from its URL — the same origin, the same branch refs — after checking that
 the bundle is of the source this car follows; `lpam sync --bundle` then verifies the
-revision (its signature, with `trust:`) and applies it like any fetched one.
+revision (its signature, with `trust:`) and applies it like any fetched one: a bundle is a
+desired-state source (`BundleFile`) as the network is (workflow/source.py).
 """
 
 from __future__ import annotations
 
-import json
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 from reconciler.errors import ConfigError, LpamError
+from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
-from reconciler.workflow.sync import DEFAULT_FILE, SOURCE_KEY, VEHICLE_DIR, desired_at
+from reconciler.workflow.source import DEFAULT_FILE, SOURCE_KEY, VEHICLE_DIR, desired_at
+from schemas.agent import AgentConfig
 from schemas.names import is_hex_commit
-
-if TYPE_CHECKING:
-    from dulwich.bundle import Bundle
-    from dulwich.object_store import BaseObjectStore
-
-MANIFEST = b"refs/lpam/manifest"
-FORMAT = 1
 
 
 @dataclass(frozen=True)
@@ -46,18 +40,14 @@ class Entry:
     ref: str | None
 
 
-def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report) -> int:
+def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report,
+           lock_timeout: float = FETCH_LOCK_TIMEOUT) -> int:
     """Write the bundle of `url`'s `branch` to `out`; how many repositories it holds."""
-    from dulwich.bundle import create_bundle_from_repo, write_bundle
-    from dulwich.objects import Blob, ObjectID
-    from dulwich.refs import Ref
-    from dulwich.repo import Repo
-
-    from reconciler.atomic import write_atomic
+    from reconciler.adapters import bundle
     from reconciler.execution.lock import apply_lock
 
     store = machine.store()
-    with apply_lock(machine.layout, timeout=60.0):
+    with apply_lock(machine.layout, timeout=lock_timeout):
         store.fetch(SOURCE_KEY, url)
         refs = store.local_refs(SOURCE_KEY)
         tip = None if refs is None else refs.resolve(branch)
@@ -65,32 +55,10 @@ def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report
             raise ConfigError(f"the source has no branch {branch!r}", path=url,
                               hint="name the branch the cars follow")
         entries = _pinned(machine, url, tip, report)
-    with tempfile.TemporaryDirectory(prefix="lpam-bundle-") as tmp, \
-            Repo.init_bare(tmp) as pack:
-        for key, commit in [(SOURCE_KEY, tip), *((e.key, e.commit) for e in entries)]:
-            with Repo(str(machine.layout.repository_dir(key))) as source:
-                count, records = source.generate_pack_data(
-                    have=set(), want={ObjectID(commit.encode("ascii"))})
-                pack.object_store.add_pack_data(count, records)
-        manifest = {"format": FORMAT, "source": {"url": url, "branch": branch, "commit": tip},
-                    "repositories": [e.__dict__ for e in entries]}
-        blob = Blob.from_string(json.dumps(manifest, indent=2, sort_keys=True).encode())
-        pack.object_store.add_object(blob)
-        pack.refs[Ref(f"refs/heads/{branch}".encode())] = ObjectID(tip.encode("ascii"))
-        pack.refs[Ref(MANIFEST)] = blob.id
-        for number, entry in enumerate(entries):
-            pack.refs[Ref(f"refs/lpam/pins/{number}".encode())] = \
-                ObjectID(entry.commit.encode("ascii"))
-        named = [ref for ref in pack.refs if ref != b"HEAD"]  # HEAD names nothing here
-        bundle = create_bundle_from_repo(pack, refs=named)
-        try:
-            partial = out.with_name(f".{out.name}.partial")
-            with partial.open("wb") as stream:
-                write_bundle(stream, bundle)
-            write_atomic(out, partial.read_bytes())
-            partial.unlink()
-        finally:
-            _release(bundle)
+    manifest = {"source": {"url": url, "branch": branch, "commit": tip},
+                "repositories": [e.__dict__ for e in entries]}
+    bundle.write(machine.layout, out, branch=branch, tip=tip, manifest=manifest,
+                 pins=[(SOURCE_KEY, tip), *((e.key, e.commit) for e in entries)])
     report(Progress(f"bundle of {url} {branch} at {tip[:12]}: {len(entries)} repositories"))
     return len(entries)
 
@@ -138,41 +106,20 @@ def _ref_name(machine: Machine, key: str, ref: str | None) -> str | None:
     return None
 
 
-def unpack(machine: Machine, path: Path, url: str, branch: str) -> str:
+def unpack(machine: Machine, path: Path, url: str, branch: str, *,
+           lock_timeout: float = FETCH_LOCK_TIMEOUT) -> str:
     """Bring the bundle at `path` into the store; the source revision it carries."""
-    from dulwich.bundle import read_bundle
-    from dulwich.refs import Ref
-    from dulwich.repo import Repo
-
+    from reconciler.adapters import bundle
     from reconciler.execution.lock import apply_lock
 
-    try:
-        stream = path.open("rb")
-    except OSError as exc:
-        raise ConfigError(f"cannot read the bundle: {exc.strerror}", path=path) from None
-    with stream, tempfile.TemporaryDirectory(prefix="lpam-unbundle-") as tmp, \
-            Repo.init_bare(tmp) as pack:
-        try:
-            bundle = read_bundle(stream)
-        except (ValueError, AssertionError, KeyError) as exc:
-            raise ConfigError(f"not a git bundle lpam wrote: {exc}", path=path,
-                              hint="make one with `lpam bundle create`") from None
-        try:
-            _store(bundle, pack.object_store, path)
-            manifest_id = bundle.references.get(Ref(MANIFEST))
-        finally:
-            _release(bundle)
-        if manifest_id is None:
-            raise ConfigError("this git bundle has no lpam manifest", path=path,
-                              hint="make one with `lpam bundle create`")
-        manifest = _manifest(pack.object_store[manifest_id].as_raw_string(), path)
+    with bundle.opened(path) as (manifest, pack):
         source = manifest["source"]
         if (source["url"], source["branch"]) != (url, branch):
             raise ConfigError(f"this bundle is of {source['url']} ({source['branch']}); this "
                               f"car follows {url} ({branch})", path=path,
                               hint="make the bundle with --source set to the car's source")
         store = machine.store()
-        with apply_lock(machine.layout, timeout=60.0):
+        with apply_lock(machine.layout, timeout=lock_timeout):
             store.adopt(SOURCE_KEY, url, pack, [source["commit"]],
                         {f"refs/remotes/origin/{branch}": source["commit"]})
             for entry in manifest["repositories"]:
@@ -187,40 +134,16 @@ def unpack(machine: Machine, path: Path, url: str, branch: str) -> str:
         return str(source["commit"])
 
 
-def _manifest(raw: bytes, path: Path) -> dict[str, Any]:
-    try:
-        data = json.loads(raw)
-        if data.get("format") != FORMAT:
-            raise ValueError(f"manifest format {data.get('format')!r}")
-        source = data["source"]
-        for entry in data["repositories"]:
-            if not all(isinstance(entry.get(k), str) for k in ("key", "url", "commit")):
-                raise ValueError("a repository entry lacks key, url or commit")
-        if not all(isinstance(source.get(k), str) for k in ("url", "branch", "commit")):
-            raise ValueError("the source lacks url, branch or commit")
-    except (ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise ConfigError(f"the bundle's manifest is not one lpam can read: {exc}",
-                          path=path, hint="make the bundle again with this lpam") from None
-    result: dict[str, Any] = data
-    return result
+@dataclass(frozen=True)
+class BundleFile:
+    """A bundle file as the desired-state source of one sync pass (`lpam sync --bundle`):
+    no network, the source and what it pins unpacked into the store."""
 
+    path: Path
+    live = False  # a file: never "offline", whatever it holds is all there is
 
-def _store(bundle: Bundle, store: BaseObjectStore, path: Path) -> None:
-    """Every object of the bundle into `store` as one pack, deltas resolved against the
-    rest of the bundle. Not `Bundle.store_objects`: dulwich 0.24, the last for Python 3.9,
-    skips deltified objects there (dulwich#2312), and 1.x writes each as a loose file."""
-    from dulwich.pack import PackData, PackInflater
-
-    data = bundle.pack_data
-    if not isinstance(data, PackData):
-        raise ConfigError("this git bundle holds no pack lpam can read", path=path,
-                          hint="make one with `lpam bundle create`")
-    store.add_objects([(obj, None) for obj in PackInflater.for_pack_data(data)])
-
-
-def _release(bundle: Bundle) -> None:
-    """Close the bundle's pack data: dulwich >= 0.25 keeps it open until `close()`; 0.24,
-    the last dulwich for Python 3.9, reads it whole and has no `close`."""
-    close = getattr(bundle, "close", None)
-    if close is not None:
-        close()
+    def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
+              lock_timeout: float) -> str | None:
+        unpack(machine, self.path, config.source.url, config.source.branch,
+               lock_timeout=lock_timeout)
+        return f"from the bundle {self.path}"

@@ -11,13 +11,14 @@ and one small file per car. The age is measured against the clock the caller pas
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 from reconciler.errors import ConfigError
+from reconciler.text import printable
+from schemas.fleet import CarStatus
 
 PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
 
@@ -37,53 +38,42 @@ class Vehicle:
 
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
     """(the followed branch's tip, one row per vehicle with a status branch)."""
-    from dulwich.errors import NotGitRepository
-    from dulwich.objects import Commit, Tree
-    from dulwich.refs import Ref
-    from dulwich.repo import Repo
+    from reconciler.adapters.clone import published
+    from reconciler.publication import STATUS_FILE, read_status_file
 
-    try:
-        repo = Repo(str(repo_path))
-    except NotGitRepository:
-        raise ConfigError("not a clone of the desired-state repository", path=repo_path,
-                          hint="run it in a clone (git clone …; git fetch) or pass --repo") \
-            from None
-    with repo:
-        refs = repo.get_refs()
-        tip_id = refs.get(Ref(f"refs/remotes/origin/{branch}".encode())) or \
-            refs.get(Ref(f"refs/heads/{branch}".encode()))
-        tip = tip_id.decode("ascii") if tip_id else None
-        seen: dict[str, Vehicle] = {}
-        for name, sha in sorted(refs.items()):
-            prefix = next((p for p in PREFIXES if name.startswith(p)), None)
-            if prefix is None or sha is None:
-                continue
-            vehicle = name[len(prefix):].decode("utf-8", "replace")
-            commit = repo[sha]
-            if not isinstance(commit, Commit) or vehicle in seen:
-                continue
-            tree = repo[commit.tree]
-            assert isinstance(tree, Tree)
-            try:
-                _, blob_id = tree[b"status.json"]
-                body: dict[str, Any] = json.loads(repo[blob_id].as_raw_string())
-            except (KeyError, ValueError):
-                continue
-            seen[vehicle] = _row(vehicle, body, tip, commit.commit_time)
+    tip, files = published(repo_path, branch=branch, prefixes=PREFIXES,
+                           file=STATUS_FILE.encode())
+    seen: dict[str, Vehicle] = {}
+    for found in files:  # the first branch of a vehicle with a status in JSON counts
+        if found.name in seen:
+            continue
+        when = datetime.fromtimestamp(found.commit_time, timezone.utc)
+        try:
+            status = read_status_file(found.content, where=Path(f"status/{found.name}") /
+                                      STATUS_FILE)
+        except ConfigError as exc:  # a damaged file, a newer lpam's: the car, and why
+            seen[found.name] = Vehicle(found.name, None, None, None, None, None, None,
+                                       exc.message, _seen(when))
+            continue
+        if status is not None:
+            seen[found.name] = _row(found.name, status, tip, when)
     return tip, list(seen.values())
 
 
-def _row(vehicle: str, body: dict[str, Any], tip: str | None, when: int) -> Vehicle:
-    agent = body.get("agent") or {}
-    app = body.get("app") or {}
-    last = agent.get("last_attempt") or {}
-    applied = agent.get("applied_revision")
+def _row(vehicle: str, status: CarStatus, tip: str | None, when: datetime) -> Vehicle:
+    agent, app = status.agent, status.app
+    last = agent.last_attempt
+    applied = agent.applied_revision
     return Vehicle(
-        vehicle=vehicle, follows=agent.get("follows"), applied=applied,
+        vehicle=vehicle, follows=agent.follows, applied=applied,
         up_to_date=None if tip is None or applied is None else applied == tip,
-        app=app.get("name"), running=app.get("running"), last_pass=last.get("result"),
-        reason=last.get("reason"),
-        last_seen=datetime.fromtimestamp(when, timezone.utc).isoformat(timespec="seconds"))
+        app=None if app is None else app.name, running=None if app is None else app.running,
+        last_pass=None if last is None else last.result,
+        reason=None if last is None else last.reason, last_seen=_seen(when))
+
+
+def _seen(when: datetime) -> str:
+    return when.isoformat(timespec="seconds")
 
 
 def age(row: Vehicle, now: datetime) -> float:
@@ -119,7 +109,7 @@ def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
               (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""),
               ago(age(r, now)))
              for r in rows]
-    cells = [tuple("".join(c if c.isprintable() else "?" for c in v)[:60] for v in row)
+    cells = [tuple(printable(v)[:60] for v in row)
              for row in cells]
     widths = [max(len(h), *(len(row[i]) for row in cells)) for i, h in enumerate(header)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip()]

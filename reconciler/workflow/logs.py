@@ -12,7 +12,8 @@ where to look — never an empty answer with exit 0.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from reconciler.workflow.machine import Machine
 
 LOG_FILES = 50  # run logs looked at, newest first: enough for weeks of applies
 READ_LIMIT = 1024 * 1024  # bytes of one run log
+FOLLOW_LINES = 200  # asked of the manager each second while following
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,29 @@ def app_logs(machine: Machine, lines: int) -> Shown:
         raise LpamError(f"no output of {app.name} is known to lpam: {where}",
                         hint=f"its scripts' output would be in {machine.layout.logs}/*.log")
     return Shown(scripts, [f"{where}; below, what its scripts printed during lpam's runs"])
+
+
+def new_output(machine: Machine, shown: Shown, *,
+               sleep: Callable[[float], None] = time.sleep) -> Iterator[str]:
+    """`lpam logs -f`: the lines the app prints after `shown`, as they come, forever; only
+    a unit whose manager has its output can be followed."""
+    if shown.unit is None:
+        raise LpamError("cannot follow: the service manager does not have this app's output",
+                        hint="the note above says where it is")
+    previous = shown.lines
+    while True:
+        sleep(1.0)
+        lines = machine.services.logs(shown.unit, FOLLOW_LINES)
+        yield from lines[overlap(previous, lines):]
+        previous = lines
+
+
+def overlap(before: list[str], after: list[str]) -> int:
+    """How many leading lines of `after` were the end of `before` (what -f already printed)."""
+    for size in range(min(len(before), len(after)), 0, -1):
+        if before[-size:] == after[:size]:
+            return size
+    return 0
 
 
 def script_output(layout: Layout, app: str, lines: int) -> list[str]:

@@ -133,6 +133,7 @@ class Machine:
                 listener: Listener | None = None, resume: str | None = None,
                 desired: DesiredRef | None = None) -> tuple[Context, Path]:
         """What the steps of one run may touch, and the log of its scripts and commands."""
+        from reconciler.adapters.catkin import find_underlay
         from reconciler.adapters.scripts import ScriptRunner
         from reconciler.execution.context import Context
         from reconciler.state import read_record
@@ -146,9 +147,17 @@ class Machine:
                                  timeout=script_timeout, lock_fd=lock.fd, note=lock.note),
             deps=self.deps, log=CommandLog(log, report), stop_requested=self.stop_requested,
             gate=gate, gate_wait=gate_wait, listener=listener,
-            command=resume or f"lpam {command}", desired=desired,
+            command=resume or f"lpam {command}", desired=desired, underlay=find_underlay,
         )
         return ctx, log
+
+
+def shutdown_services(layout: Layout) -> bool:
+    """`lpam services shutdown`: stop the supervisord lpam started for `layout` (and the
+    apps it runs); False when none was running."""
+    from reconciler.adapters.services.supervisor import shutdown
+
+    return shutdown(layout)
 
 
 class CommandLog:

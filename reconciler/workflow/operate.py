@@ -15,19 +15,27 @@ import hashlib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from datetime import datetime
+from pathlib import Path
 
 from reconciler import __version__, generations
 from reconciler.errors import LpamError
 from reconciler.execution.context import Context
 from reconciler.execution.executor import execute
+from reconciler.execution.lock import apply_lock
+from reconciler.layout import KEEP_GENERATIONS
 from reconciler.planning.lifecycle import app_steps, operator_steps, target_of
 from reconciler.planning.model import GenerationKey
 from reconciler.planning.plan import fingerprint
+from reconciler.workflow.applying import ApplyOptions
+from reconciler.workflow.events import Progress, Report
+from reconciler.workflow.gates import governing
+from reconciler.workflow.machine import Machine
 from schemas.desired import DesiredState
+from schemas.operator import OperatorAction
 from schemas.plan import Plan, Step
 from schemas.record import HistoryEntry, Hold
 
-Progress = Callable[[str], None]
+ProgressLine = Callable[[str], None]
 
 
 def _plan(ctx: Context, steps: list[Step], summary: str, now: datetime) -> Plan:
@@ -37,7 +45,39 @@ def _plan(ctx: Context, steps: list[Step], summary: str, now: datetime) -> Plan:
     return plan.model_copy(update={"fingerprint": fingerprint(plan)})
 
 
-def operate(ctx: Context, action: str, *, progress: Progress) -> str:
+def operate_installed(machine: Machine, action: OperatorAction, *, file: Path | None,
+                      force: bool, options: ApplyOptions, report: Report) -> str:
+    """`lpam start|stop|restart`: under the apply lock, obeying the gates of the desired
+    state in force (workflow/gates.py) unless `force`; returns what was done."""
+    gate = governing(machine, file, force=force).gate
+    with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
+        ctx, _ = machine.context(machine.store(), lock, command=str(action),
+                                 script_timeout=options.script_timeout, report=report,
+                                 gate=gate, gate_wait=options.wait)
+        return operate(ctx, action, progress=lambda text: report(Progress(text)))
+
+
+def roll_back(machine: Machine, *, file: Path | None, force: bool, options: ApplyOptions,
+              confirm: Callable[[HistoryEntry], bool], report: Report) -> str | None:
+    """`lpam rollback`: under the apply lock, the previous good generation is found and
+    `confirm`ed, then made current (see `rollback`); None when it was declined. It holds
+    against `file` (else the default file) when no apply recorded what it applied."""
+    from reconciler.documents import load_desired
+
+    path = file if file is not None else machine.layout.desired_state
+    desired = load_desired(path) if path.exists() else None
+    gate = governing(machine, file, force=force).gate
+    with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
+        ctx, _ = machine.context(machine.store(), lock, command="rollback",
+                                 script_timeout=options.script_timeout, report=report,
+                                 gate=gate, gate_wait=options.wait)
+        entry = previous_good(ctx)
+        if not confirm(entry):
+            return None
+        return rollback(ctx, entry, desired, progress=lambda text: report(Progress(text)))
+
+
+def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine) -> str:
     """Start, stop or restart the installed app now; returns what was done."""
     app = ctx.record.app
     if app is None:
@@ -46,7 +86,7 @@ def operate(ctx: Context, action: str, *, progress: Progress) -> str:
     with gates_passed(ctx, progress):
         # The operator's wish is written first, so that a fault cannot undo it: the next
         # run carries out a stop (or a start) that was asked for and cut off.
-        if action == "stop":
+        if action == OperatorAction.STOP:
             ctx.save_app(app.model_copy(update={"held": True}))
         elif app.held:
             ctx.save_app(app.model_copy(update={"held": False}))
@@ -54,15 +94,15 @@ def operate(ctx: Context, action: str, *, progress: Progress) -> str:
         if steps:
             execute(_plan(ctx, steps, f"{action} {app.name}", ctx.clock()), ctx,
                     progress=progress, record_result=False)
-    if action == "stop":
+    if action == OperatorAction.STOP:
         return (f"Stopped {app.name}; it stays stopped until `lpam start` or a change of "
                 "the desired state.")
-    verb = {"start": "Started", "restart": "Restarted"}[action]
+    verb = "Restarted" if action == OperatorAction.RESTART else "Started"
     return f"{verb} {app.name}." if steps else f"{app.name} is already running."
 
 
 @contextmanager
-def gates_passed(ctx: Context, progress: Progress) -> Iterator[None]:
+def gates_passed(ctx: Context, progress: ProgressLine) -> Iterator[None]:
     """An operator command obeys the update gates (unless --force, which gives none): they
     are passed before anything is written — a stop's hold mark included — and their locks
     held to the end. Closed: `Deferred`, and nothing changed."""
@@ -91,13 +131,14 @@ def previous_good(ctx: Context) -> HistoryEntry:
         if GenerationKey.of(entry.app, entry.generation) in present:
             return entry
     raise LpamError("no previous good generation is kept on disk to roll back to",
-                    hint="see `lpam history`; lpam keeps the last 3 good generations")
+                    hint="see `lpam history`; lpam keeps the last good generations on disk "
+                    f"({KEEP_GENERATIONS}, or as many as `--keep-generations` said)")
 
 
 def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,
-             progress: Progress) -> str:
+             progress: ProgressLine) -> str:
     """Make `entry` current again through journalled steps, and hold it there. The hold is
-    written first: if lpam dies mid-rollback, the next plan finishes it (cli._prepare).
+    written first: if lpam dies mid-rollback, the next plan finishes it (workflow.planning).
     It holds against the desired state last applied, whichever file or revision that came
     from (`desired`, the default file's, counts only when no apply recorded one)."""
     applied = ctx.record.desired

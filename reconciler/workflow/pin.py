@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from reconciler.errors import ConfigError
+from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
 from schemas.names import is_hex_commit
@@ -30,7 +31,7 @@ class Pinned:
 
 
 def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
-        write: bool = True) -> list[Pinned]:
+        write: bool = True, lock_timeout: float | None = None) -> list[Pinned]:
     """Pin `path` in place (unless not `write`); the repositories pinned."""
     from ruamel.yaml import YAML
 
@@ -72,7 +73,8 @@ def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
         done.append(Pinned(spec.key, was, commit))
         report(Progress(f"{spec.key}: {was} → {commit}"))
     if catalogs:
-        _report_ros(machine, path, report)
+        _report_ros(machine, path, report, lock_timeout=FETCH_LOCK_TIMEOUT
+                    if lock_timeout is None else lock_timeout)
     if write and done:
         out = io.StringIO()
         yaml.dump(data, out)
@@ -89,7 +91,8 @@ def _sequence_offset(text: str) -> int:
     return len(found.group(1)) if found else 2
 
 
-def _report_ros(machine: Machine, path: Path, report: Report) -> None:
+def _report_ros(machine: Machine, path: Path, report: Report, *,
+                lock_timeout: float) -> None:
     """The ROS repositories of the app the file names, as they resolve now."""
     from reconciler.documents import load_desired
     from reconciler.execution.lock import apply_lock
@@ -97,7 +100,7 @@ def _report_ros(machine: Machine, path: Path, report: Report) -> None:
     from reconciler.observe.targets import Fetch, resolve
 
     desired = load_desired(path)
-    with apply_lock(machine.layout, timeout=60.0):  # a fetch into the store is a write
+    with apply_lock(machine.layout, timeout=lock_timeout):  # a fetch into the store is a write
         targets = resolve(desired, base_dir=path.resolve().parent, store=machine.store(),
                           fetch=Fetch.OBJECTS, default_user=libpanda_user(machine.layout),
                           root=machine.layout.root)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from reconciler import __version__
 from reconciler.errors import LockError, LpamError
+from reconciler.workflow.defaults import LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Phase, Report
 from reconciler.workflow.machine import Machine
 
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 
 
 def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
-         offline: bool = False, out: Path | None = None, lock_timeout: float = 10.0) -> Plan:
+         offline: bool = False, out: Path | None = None, lock_timeout: float | None = None) -> Plan:
     """`lpam plan`: exact when it can take the lock, from what is local beside a running
     apply (said in a note) or when `offline`. `out` saves the plan (an exact one only)."""
     from reconciler.execution.lock import apply_lock, holder
@@ -40,7 +41,8 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
         return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
                        busy=holder(machine.layout))[1]
     try:
-        with apply_lock(machine.layout, timeout=lock_timeout):
+        with apply_lock(machine.layout,
+                        timeout=LOCK_TIMEOUT if lock_timeout is None else lock_timeout):
             _, made = prepare(machine, path, desired, fetch=Fetch.OBJECTS, report=report)
             if out is not None:
                 from reconciler.atomic import write_atomic
@@ -53,6 +55,16 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
             raise
         return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
                        busy=busy)[1]
+
+
+def plan_file(machine: Machine, path: Path, *, report: Report, offline: bool = False,
+              out: Path | None = None, lock_timeout: float | None = None) -> Plan:
+    """`lpam plan [-f FILE]`: the desired state at `path` read (refused before any lock),
+    then planned as `plan` does."""
+    from reconciler.documents import load_desired
+
+    return plan(machine, path, load_desired(path), report=report, offline=offline, out=out,
+                lock_timeout=lock_timeout)
 
 
 def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch,

@@ -10,19 +10,19 @@ phase fails on its own, and never at the running app's expense:
   new one arrives — a broken commit must not restart the car's app every five minutes;
 - `fetch_only`: fetch the source and the commits it pins, record, change nothing (the
   pass at shutdown, so that what WiFi brought at the end of a trip applies at the next
-  start);
+  start); pins that could not be fetched are recorded as such (offline, or failed when
+  the desired state is at fault), never as fetched;
 - a damaged copy in the repository store (the source's or an app repository's) is fetched
   anew, as apply does; with no network to do so the pass is "offline", not failed: the
   revision is not at fault, and the next pass with network tries it again.
 
-Relative `url:` paths in the desired state resolve against the source repository's own
-URL, as git resolves a submodule's (`../apps.git` beside the fleet repository, on the
-laptop that serves both).
+Where the source's revision comes from — the network or a bundle file — is a
+`DesiredStateSource` (workflow/source.py, with the relative `url:` paths of a desired
+state resolved against the source repository's URL, as git resolves a submodule's).
 """
 
 from __future__ import annotations
 
-import json
 import posixpath
 import socket
 from dataclasses import dataclass
@@ -41,8 +41,17 @@ from reconciler.errors import (
     TrustError,
 )
 from reconciler.workflow.applying import ApplyOptions, apply
+from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.machine import Machine
+from reconciler.workflow.source import (
+    DEFAULT_FILE,
+    SOURCE_KEY,
+    VEHICLE_DIR,
+    DesiredStateSource,
+    desired_at,
+)
+from reconciler.workflow.source import join_url as join_url
 from schemas.agent import (
     PASSES_KEPT,
     AgentConfig,
@@ -57,9 +66,6 @@ from schemas.agent import (
 if TYPE_CHECKING:
     from schemas.desired import DesiredState
 
-SOURCE_KEY = "@source"  # the desired-state repository in the store: never an app's key
-VEHICLE_DIR = "vehicles"
-DEFAULT_FILE = "desired-state.yaml"
 
 
 @dataclass(frozen=True)
@@ -101,19 +107,17 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     options = options or ApplyOptions()
     status = read_status(machine)
     vehicle = vehicle_id(machine, config)
-    if bundle is not None:
-        from reconciler.workflow.bundle import unpack
-
-        unpack(machine, bundle, config.source.url, config.source.branch)
-        offline: str | None = f"from the bundle {bundle}"
-    else:
-        try:
-            offline = _fetch(machine, config, report)
-        except StoreDamagedError as exc:
-            report(Note(f"offline: {exc.message}"))
-            return _record(machine, status, Synced("offline", None, exc.message, exc.hint))
-        if offline is None:
-            online.append(True)
+    source = _source(bundle)
+    try:
+        offline = source.bring(machine, config, report,
+                               lock_timeout=options.lock_wait(FETCH_LOCK_TIMEOUT))
+    except StoreDamagedError as exc:
+        if not source.live:
+            raise
+        report(Note(f"offline: {exc.message}"))
+        return _record(machine, status, Synced("offline", None, exc.message, exc.hint))
+    if offline is None:
+        online.append(True)
     revision = _tip(machine, config)
     status = status.model_copy(update={"vehicle": vehicle, "desired_revision": revision})
     if revision is None:
@@ -122,7 +126,7 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     status = status.model_copy(update={"follows": followed(machine, vehicle, revision)})
     if fetch_only:
         return _record(machine, status, _fetch_pins(machine, config, vehicle, revision, report))
-    if offline and bundle is None and revision == status.applied_revision:
+    if offline and source.live and revision == status.applied_revision:
         return _record(machine, status, Synced("offline", revision, offline))
     if config.trust is not None:
         try:
@@ -172,7 +176,6 @@ def _reason(exc: LpamError) -> str:
 
 
 STATUS_PREFIX = "status/"
-STATUS_FILE = "status.json"
 
 
 def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
@@ -184,7 +187,7 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     keeps working and its status stays local."""
     from reconciler import status as machine_status
     from reconciler.atomic import write_atomic
-    from reconciler.publication import APP_FIELDS, due, fingerprint
+    from reconciler.publication import APP_FIELDS, due, fingerprint, status_file
 
     own = read_status(machine)
     if own.vehicle is None:
@@ -196,13 +199,11 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
     if why is None:
         return
-    body = {"agent": own.model_dump(mode="json"), "app": shown}
-    text = json.dumps(body, indent=2, sort_keys=True) + "\n"
     branch = STATUS_PREFIX + own.vehicle
     result: Published = "pushed"
     reason = None
     try:
-        _push(machine, config, branch, text.encode("utf-8"), when=int(now.timestamp()),
+        _push(machine, config, branch, status_file(own, shown), when=int(now.timestamp()),
               report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:
@@ -227,7 +228,7 @@ def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *,
     commits, else starting it afresh. A server that refuses to rewrite the branch (git's
     receive.denyNonFastForwards, a protected branch) gets it on top after all: a status
     published with a growing history is better than none."""
-    from reconciler.publication import HISTORY, keeps_parent
+    from reconciler.publication import HISTORY, STATUS_FILE, keeps_parent
 
     store = machine.store()
     length = store.history_length(SOURCE_KEY, branch, limit=HISTORY)
@@ -269,13 +270,33 @@ def vehicle_id(machine: Machine, config: AgentConfig) -> str:
                           hint="set `vehicle:` in agent.yaml to a valid id") from None
 
 
-def _fetch(machine: Machine, config: AgentConfig, report: Report) -> str | None:
+def _source(bundle: Path | None) -> DesiredStateSource:
+    """The network, or the bundle file `lpam sync --bundle` names."""
+    if bundle is None:
+        return Remote()
+    from reconciler.workflow.bundle import BundleFile
+
+    return BundleFile(bundle)
+
+
+class Remote:
+    """The source's URL, fetched over the network."""
+
+    live = True
+
+    def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
+              lock_timeout: float) -> str | None:
+        return _fetch(machine, config, report, lock_timeout=lock_timeout)
+
+
+def _fetch(machine: Machine, config: AgentConfig, report: Report, *,
+           lock_timeout: float) -> str | None:
     """Fetch the source under the lock (a fetch is a write); the reason when offline."""
     from reconciler.execution.lock import apply_lock
     from reconciler.observe.targets import sound_copy
 
     try:
-        with apply_lock(machine.layout, timeout=60.0):
+        with apply_lock(machine.layout, timeout=lock_timeout):
             store = machine.store()
             sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
                        notice=lambda text: report(Note(text)))
@@ -382,52 +403,24 @@ def applied_desired(machine: Machine) -> Followed | None:
     return _desired(machine, config, vehicle_id(machine, config), revision)
 
 
-def desired_at(machine: Machine, url: str, revision: str,
-               name: str) -> tuple[Path, DesiredState] | None:
-    """The desired state in the file `name` of the source at `revision` (None without it),
-    relative URLs made absolute; faults are located as `fleet.git@c92f32f2ab56/<name>`."""
-    from reconciler.documents import desired_from
-    from reconciler.loading import load
-
-    data = machine.store().read_file(SOURCE_KEY, revision, name)
-    if data is None:
-        return None
-    label = Path(f"{url.rstrip('/').rsplit('/', 1)[-1]}@{revision[:12]}") / name
-    return label, anchored(desired_from(load(label, data.decode("utf-8", "replace"))), url)
-
-
-def anchored(desired: DesiredState, source: str) -> DesiredState:
-    repos = []
-    for spec in desired.repositories:
-        if spec.url is not None and "://" not in spec.url and not spec.url.startswith("/"):
-            spec = spec.model_copy(update={"url": join_url(source, spec.url)})
-        repos.append(spec)
-    return desired.model_copy(update={"repositories": repos})
-
-
-def join_url(base: str, relative: str) -> str:
-    """`relative` against the repository at `base`, as git joins a submodule's URL: from
-    the repository's own location (`../apps.git` is its sibling)."""
-    if "://" in base:
-        scheme, rest = base.split("://", 1)
-        host, _, path = rest.partition("/")
-        joined = posixpath.normpath(posixpath.join("/" + path, relative))
-        return f"{scheme}://{host}{joined}"
-    return posixpath.normpath(posixpath.join(base, relative))
-
-
 def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: str,
                 report: Report) -> Synced:
     """Bring the commits the desired state pins into the store (objects only), so that the
-    next start can apply with no network."""
+    next start can apply with no network. When they cannot be fetched the pass says so, as
+    a whole pass would: offline when git could not reach them (the revision is not at
+    fault, the next pass tries again), failed when the desired state itself is at fault."""
     from reconciler.workflow.planning import plan
 
     try:
         chosen = _desired(machine, config, vehicle, revision)
         plan(machine, chosen.label, chosen.desired, report=report)
+    except GitError as exc:
+        report(Note(f"offline: {exc.message}"))
+        return Synced("offline", revision, "the source was fetched; the commits it pins "
+                      f"were not: {exc.message}", exc.hint)
     except LpamError as exc:
-        return Synced("fetched", revision, f"the source was fetched; its pins not: "
-                      f"{exc.message}")
+        return Synced("failed", revision, "the source was fetched; the commits it pins "
+                      f"were not: {_reason(exc)}", exc.hint)
     return Synced("fetched", revision)
 
 

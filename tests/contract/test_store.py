@@ -18,7 +18,7 @@ import pytest
 from reconciler.adapters.git import GitStore
 from reconciler.adapters.memory import MemoryStore
 from reconciler.errors import GitError, RefNotFoundError, StoreDamagedError
-from reconciler.execution.ports import Store
+from reconciler.execution.ports import RemoteRefs, Resolving
 from reconciler.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 
@@ -34,6 +34,7 @@ class Remote:
     second: str
     trees: dict[str, str]  # commit → tree hash of alpha/
     files: dict[str, dict[str, str]]  # commit → file name → text
+    branch: str = "main"  # tests.gitserver makes every repository's default branch main
 
 
 def build(repo: RepoBuilder, url: str) -> Remote:
@@ -41,6 +42,7 @@ def build(repo: RepoBuilder, url: str) -> Remote:
     repo.write("alpha/run.sh", files["run.sh"], executable=True)
     first = repo.commit("one")
     second = repo.commit("two", {"alpha/run.sh": "echo two\n"})
+    repo.tag("v1", first, message="the first")  # annotated: advertised peeled
     repo.push()
     trees = {c: repo.rev(f"{c}:alpha") for c in (first, second)}
     return Remote(url, first, second, trees,
@@ -49,7 +51,9 @@ def build(repo: RepoBuilder, url: str) -> Remote:
 
 def memory_store(layout: Layout, remote: Remote) -> MemoryStore:
     folders = {c: {"alpha": (remote.trees[c], remote.files[c])} for c in remote.trees}
-    return MemoryStore(layout=layout, remotes={remote.url: folders})
+    refs = {f"refs/heads/{remote.branch}": remote.second, "refs/tags/v1": remote.first}
+    return MemoryStore(layout=layout, remotes={remote.url: folders},
+                       advertised={remote.url: RemoteRefs(remote.url, refs, remote.branch)})
 
 
 def git_store(layout: Layout, remote: Remote) -> GitStore:
@@ -60,15 +64,15 @@ def git_store(layout: Layout, remote: Remote) -> GitStore:
 def world(
     request: pytest.FixtureRequest, tmp_path: Path, git_daemon: GitDaemon,
     make_repo: Callable[[str], RepoBuilder],
-) -> Iterator[tuple[Store, Remote, Layout]]:
+) -> Iterator[tuple[Resolving, Remote, Layout]]:
     remote = build(make_repo("apps.git"), git_daemon.url("apps.git"))
     layout = Layout(tmp_path / "root")
-    factory: Callable[[Layout, Remote], Store] = request.param
+    factory: Callable[[Layout, Remote], Resolving] = request.param
     yield factory(layout, remote), remote, layout
 
 
 def test_fetch_brings_every_commit_and_records_the_origin(
-    world: tuple[Store, Remote, Layout],
+    world: tuple[Resolving, Remote, Layout],
 ) -> None:
     store, remote, _ = world
     assert store.origin_url(KEY) is None and not store.has_commit(KEY, remote.first)
@@ -80,7 +84,7 @@ def test_fetch_brings_every_commit_and_records_the_origin(
 
 
 def test_checkout_moves_head_and_refuses_unknown_commits(
-    world: tuple[Store, Remote, Layout],
+    world: tuple[Resolving, Remote, Layout],
 ) -> None:
     store, remote, _ = world
     store.fetch(KEY, remote.url)
@@ -94,7 +98,7 @@ def test_checkout_moves_head_and_refuses_unknown_commits(
 
 
 def test_export_copies_the_folder_at_a_commit_with_its_tree_hash(
-    world: tuple[Store, Remote, Layout], tmp_path: Path,
+    world: tuple[Resolving, Remote, Layout], tmp_path: Path,
 ) -> None:
     store, remote, _ = world
     store.fetch(KEY, remote.url)
@@ -108,7 +112,7 @@ def test_export_copies_the_folder_at_a_commit_with_its_tree_hash(
 
 
 def test_an_unreachable_remote_is_a_git_error_and_changes_nothing(
-    world: tuple[Store, Remote, Layout],
+    world: tuple[Resolving, Remote, Layout],
 ) -> None:
     store, remote, _ = world
     store.fetch(KEY, remote.url)
@@ -118,7 +122,7 @@ def test_an_unreachable_remote_is_a_git_error_and_changes_nothing(
     assert store.origin_url(KEY) == remote.url and store.head(KEY) == remote.first
 
 
-def test_remove_forgets_the_checkout(world: tuple[Store, Remote, Layout]) -> None:
+def test_remove_forgets_the_checkout(world: tuple[Resolving, Remote, Layout]) -> None:
     store, remote, layout = world
     store.fetch(KEY, remote.url)
     store.checkout(KEY, remote.first)
@@ -130,7 +134,7 @@ def test_remove_forgets_the_checkout(world: tuple[Store, Remote, Layout]) -> Non
 
 
 def test_folder_blobs_name_each_file_by_its_content(
-    world: tuple[Store, Remote, Layout], tmp_path: Path,
+    world: tuple[Resolving, Remote, Layout], tmp_path: Path,
 ) -> None:
     """What a copy of the folder on disk is compared with when an app LPAM installed is
     adopted: each file's git blob id, whatever its mode."""
@@ -145,7 +149,7 @@ def test_folder_blobs_name_each_file_by_its_content(
     assert store.folder_blobs(KEY, remote.first, "nowhere") is None
 
 
-def damage(store: Store, layout: Layout) -> None:
+def damage(store: Resolving, layout: Layout) -> None:
     """Damage the checkout as a power cut or a failing SD card does: the real store's packs
     cut in half, the twin told so."""
     if isinstance(store, MemoryStore):
@@ -160,7 +164,7 @@ def damage(store: Store, layout: Layout) -> None:
 
 
 def test_a_damaged_checkout_is_named_and_never_read(
-    world: tuple[Store, Remote, Layout], tmp_path: Path,
+    world: tuple[Resolving, Remote, Layout], tmp_path: Path,
 ) -> None:
     store, remote, layout = world
     store.fetch(KEY, remote.url)
@@ -183,7 +187,7 @@ def test_a_damaged_checkout_is_named_and_never_read(
 
 
 def test_renew_fetches_afresh_and_keeps_the_damaged_copy_aside(
-    world: tuple[Store, Remote, Layout], tmp_path: Path,
+    world: tuple[Resolving, Remote, Layout], tmp_path: Path,
 ) -> None:
     store, remote, layout = world
     store.fetch(KEY, remote.url)
@@ -200,7 +204,7 @@ def test_renew_fetches_afresh_and_keeps_the_damaged_copy_aside(
     assert store.renew("other", remote.url) is None  # nothing there: a plain clone
 
 
-def test_renew_without_the_remote_moves_nothing(world: tuple[Store, Remote, Layout]) -> None:
+def test_renew_without_the_remote_moves_nothing(world: tuple[Resolving, Remote, Layout]) -> None:
     store, remote, layout = world
     store.fetch(KEY, remote.url)
     damage(store, layout)
@@ -210,7 +214,7 @@ def test_renew_without_the_remote_moves_nothing(world: tuple[Store, Remote, Layo
     assert not list(layout.repositories.glob("*~damaged"))
 
 
-def test_remove_keeps_a_damaged_copy_aside(world: tuple[Store, Remote, Layout]) -> None:
+def test_remove_keeps_a_damaged_copy_aside(world: tuple[Resolving, Remote, Layout]) -> None:
     store, remote, layout = world
     store.fetch(KEY, remote.url)
     store.checkout(KEY, remote.first)
@@ -218,3 +222,78 @@ def test_remove_keeps_a_damaged_copy_aside(world: tuple[Store, Remote, Layout]) 
     store.remove(KEY)
     assert store.origin_url(KEY) is None and not layout.repository_dir(KEY).exists()
     assert [p.name for p in layout.repositories.glob("*~damaged")] == [f".{KEY}~damaged"]
+
+
+# -- what resolving a desired state asks of the store (observe/targets.py) -----------------
+
+
+def test_what_a_remote_advertises_and_what_the_last_fetch_saw(
+    world: tuple[Resolving, Remote, Layout],
+) -> None:
+    store, remote, _ = world
+    refs = store.ls_remote(remote.url)
+    assert refs.resolve(None) == refs.resolve(remote.branch) == remote.second
+    assert refs.resolve("v1") == remote.first
+    assert store.local_refs(KEY) is None
+    store.fetch(KEY, remote.url)
+    seen = store.local_refs(KEY)
+    assert seen is not None and seen.url == remote.url
+    assert seen.resolve(None) == remote.second and seen.resolve("v1") == remote.first
+    with pytest.raises(GitError):
+        store.ls_remote(remote.url.replace("apps.git", "missing.git"))
+
+
+def test_an_abbreviated_hash_expands_to_a_fetched_commit(
+    world: tuple[Resolving, Remote, Layout],
+) -> None:
+    store, remote, _ = world
+    assert store.resolve_local(KEY, remote.first[:10]) is None  # nothing fetched yet
+    store.fetch(KEY, remote.url)
+    assert store.resolve_local(KEY, remote.first[:10]) == remote.first
+    assert store.resolve_local(KEY, remote.second[:10].upper()) == remote.second
+    assert store.resolve_local(KEY, "main") is None  # not a hash: resolving asks the refs
+    assert store.resolve_local(KEY, "0" * 40) is None
+
+
+def test_a_folders_tree_and_where_the_checkout_is(
+    world: tuple[Resolving, Remote, Layout],
+) -> None:
+    store, remote, layout = world
+    assert store.location(KEY) == layout.repository_dir(KEY)
+    store.fetch(KEY, remote.url)
+    assert store.folder_tree(KEY, remote.first, "alpha") == remote.trees[remote.first]
+    assert store.folder_tree(KEY, remote.first, "nowhere") is None
+    assert store.read_file(KEY, remote.first, "alpha/run.sh") == b"echo one\n"
+    with pytest.raises(GitError):
+        store.read_file(KEY, remote.first, "alpha/run.sh", limit=4)
+
+
+def test_fetching_objects_moves_no_checkout(world: tuple[Resolving, Remote, Layout]) -> None:
+    store, remote, _ = world
+    store.fetch_objects(KEY, remote.url)  # a missing checkout is made, as by fetch
+    assert store.origin_url(KEY) == remote.url and store.has_commit(KEY, remote.second)
+    store.checkout(KEY, remote.first)
+    store.fetch_objects(KEY, remote.url)
+    assert store.head(KEY) == remote.first
+
+
+@pytest.mark.parametrize(("ref", "which"), [(None, "second"), ("v1", "first"),
+                                            ("main", "second"), ("short", "first")])
+def test_resolving_a_desired_state_reads_the_same_from_either_store(
+    world: tuple[Resolving, Remote, Layout], ref: str | None, which: str,
+) -> None:
+    """observe/targets.py resolves against the port: the twin gives what the real store
+    gives, online, and offline from what the last fetch saw."""
+    from reconciler.observe.targets import Fetch, resolve
+    from schemas.desired import DesiredState
+
+    store, remote, layout = world
+    wanted = remote.first[:10] if ref == "short" else ref
+    desired = DesiredState.model_validate(
+        {"version": 1, "repositories": [{"url": remote.url, "ref": wanted}]})
+    online = resolve(desired, base_dir=layout.root, store=store, fetch=Fetch.CHECKOUT)
+    (target,) = online.repositories
+    assert target.commit is not None and target.commit == getattr(remote, which)
+    assert store.has_commit(target.key, target.commit)
+    offline = resolve(desired, base_dir=layout.root, store=store, fetch=Fetch.OFFLINE)
+    assert offline.repositories[0].commit == target.commit

@@ -32,6 +32,7 @@ from reconciler.planning.model import AppTarget, HealthTarget
 from reconciler.planning.plan import make_plan
 from reconciler.state import read_record, write_record
 from reconciler.workflow.operate import operate
+from schemas.operator import OperatorAction
 from schemas.plan import Plan
 from schemas.record import StateRecord
 from tests.unit.test_convergence import C1, COMMAND, KEY, NOW, TREES, World
@@ -214,7 +215,7 @@ def test_an_operators_stop_cut_off_anywhere_is_carried_out(tmp_path: Path, k: in
 
     car.save_hook = die
     with contextlib.suppress(Crash):
-        operate(car.context(), "stop", progress=car.notes.append)
+        operate(car.context(), OperatorAction.STOP, progress=car.notes.append)
     car.save_hook = lambda n: None
     record = read_record(car.layout)
     if record.app is not None and record.app.held:  # the stop was asked for: it holds

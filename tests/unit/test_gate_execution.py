@@ -18,6 +18,7 @@ from reconciler.planning.model import generation_id
 from reconciler.planning.plan import make_plan
 from reconciler.state import read_record
 from reconciler.workflow.operate import operate
+from schemas.operator import OperatorAction
 from schemas.record import AppRecord, RepositoryRecord, StateRecord
 from tests.unit.test_convergence import C1, C2, KEY, NOW, TREES, URL, World
 
@@ -102,13 +103,14 @@ def test_a_gate_is_released_when_the_cutover_fails(tmp_path: Path) -> None:
 def test_operator_commands_obey_the_gates_unless_forced(tmp_path: Path) -> None:
     world = running_x(tmp_path)
     with pytest.raises(Deferred):
-        operate(context(world, MemoryGate(["moving: 30.0 km/h"])), "stop",
+        operate(context(world, MemoryGate(["moving: 30.0 km/h"])), OperatorAction.STOP,
                 progress=lambda _: None)
     app = read_record(world.layout).app
     assert app is not None and not app.held and app.status == "running"
     assert world.scripts.calls == []
     gate = MemoryGate([])
-    operate(context(world, gate), "stop", progress=lambda _: None)
+    operate(context(world, gate), OperatorAction.STOP, progress=lambda _: None)
     assert world.scripts.calls == ["x:stop.sh"] and (gate.holds, gate.releases) == (1, 1)
-    operate(context(world, None), "start", progress=lambda _: None)  # --force: no gate
+    operate(context(world, None), OperatorAction.START,
+            progress=lambda _: None)  # --force: no gate
     assert world.scripts.calls[-1] == "x:start.sh"

@@ -42,6 +42,7 @@ STEP_FIXTURES = {
     ("agent-status", "1"): FIXTURES / "agent-status" / "v1_to_v2",
     ("plan", "1"): FIXTURES / "plan" / "v1_to_v2",
     ("generation-meta", "0"): FIXTURES / "generation-meta" / "v0_to_v1",
+    ("car-status", "0"): FIXTURES / "car-status" / "v0_to_v1",
 }
 PATH = Path("doc.yaml")
 

@@ -249,16 +249,15 @@ def test_a_unit_that_cannot_be_written_is_refused_while_preparing(tmp_path: Path
 
 @pytest.mark.parametrize("underlay", [None, "/opt/ros/noetic/setup.bash"])
 def test_a_launch_app_without_a_build_of_its_own_runs_in_the_ros_distribution(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, underlay: str | None
+    tmp_path: Path, underlay: str | None
 ) -> None:
     """On the Pi roslaunch is on PATH only once /opt/ros/noetic/setup.bash is sourced;
     Debian's own roslaunch (this machine's) needs nothing."""
     from reconciler.execution import supervision
 
-    monkeypatch.setattr(supervision, "find_underlay",
-                        lambda: None if underlay is None else Path(underlay))
     services = MemoryServices()
     ctx, _ = machine(tmp_path, services, {"description.txt": "vsl\n"})
+    ctx.underlay = lambda: None if underlay is None else Path(underlay)
     values = {**args(), "launch": "can_to_ros/vsl.launch",
               "generation": generation_id(TREE, {"launch": "can_to_ros/vsl.launch"})}
     install(ctx, values)

@@ -16,8 +16,9 @@ from cantools.errors import Error as CantoolsError
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from reconciler.adapters.can.dbc import from_dbc
 from reconciler.errors import ConfigError
-from reconciler.vehicle.signal import RAV4_SPEED, ByteOrder, SignalDef, check, decode, from_dbc, raw
+from reconciler.vehicle.signal import RAV4_SPEED, ByteOrder, SignalDef, check, decode, raw
 from tests.canlog import candump_line, drive, recorded_text
 
 FRAME = re.compile(r"^\((?P<ts>[\d.]+)\) \S+ (?P<id>[0-9A-F]+)#(?P<data>[0-9A-F]*)$")

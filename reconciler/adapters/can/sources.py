@@ -4,10 +4,12 @@ a log file, behind one `FrameSource` protocol.
 Place in the flow: before a cutover, a gate asks whether the vehicle stands still. It opens
 the source `vehicle.source` names (`open_source`), takes the last seconds already recorded
 (`backlog`), listens a little longer (`frames`) and decodes the speed from what it got.
-Opening faults are a `VehicleSourceError` that names the source and what to do; a fault
-while listening (the file vanished, the bus went away) ends the stream quietly, and the
-gate reads that silence as "no signal", never as a standing car. No python-can exception
-or traceback leaves this module. python-can is imported only once a source is opened.
+Opening faults, and a recording that cannot be read (permission denied, an I/O error), are
+a `VehicleSourceError` that names the source and what to do (a gate shows it as "no
+signal", with that reason); a fault while listening (the file vanished, the bus went away)
+ends the stream quietly, and the gate reads that silence as "no signal", never as a
+standing car. No python-can exception or traceback leaves this module. python-can is
+imported only once a source is opened.
 """
 
 from __future__ import annotations
@@ -189,6 +191,10 @@ class RecordedSource:
                     newest = max(newest, msg.timestamp)
                     while window[0].timestamp < newest - seconds:
                         window.popleft()
+        except OSError as exc:
+            if exc.errno is not None:  # the file cannot be read: not a damaged record
+                raise _file_error(self.path, exc) from None
+            self.skipped += 1  # gzip's BadGzipFile, an OSError without errno: damage
         except Exception:  # a damaged record ends the log here; what came before counts
             self.skipped += 1
         return [msg for msg in window if msg.timestamp >= newest - seconds]

@@ -29,6 +29,7 @@ import string
 from pathlib import Path
 
 from reconciler.errors import ServiceError
+from reconciler.text import printable
 from reconciler.unit import Unit
 
 HERE = "%(here)s"
@@ -222,4 +223,4 @@ def settings(text: str) -> dict[str, str]:
 
 
 def _one_line(text: str) -> str:
-    return "".join(c if c.isprintable() else " " for c in text)
+    return printable(text, " ")

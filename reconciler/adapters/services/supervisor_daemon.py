@@ -32,10 +32,11 @@ from typing import Any
 
 from supervisor.xmlrpc import Faults, SupervisorTransport  # type: ignore[import-untyped]
 
-from reconciler.adapters.scripts import DEFAULT_PATH, PASSED_THROUGH
+from reconciler.adapters.scripts import PASSED_THROUGH
 from reconciler.adapters.services import orphans, supervisor_conf
 from reconciler.atomic import write_atomic
 from reconciler.errors import ServiceError
+from reconciler.execution.ports import DEFAULT_PATH
 from reconciler.flock import wait_exclusive
 from reconciler.layout import Layout
 from reconciler.process import alive

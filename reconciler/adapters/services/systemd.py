@@ -30,10 +30,10 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from reconciler.adapters.scripts import DEFAULT_PATH
 from reconciler.adapters.services.unitfile import HEADER, render_unit
 from reconciler.atomic import fsync_dir, write_atomic
 from reconciler.errors import ServiceError, shorten
+from reconciler.execution.ports import DEFAULT_PATH
 from reconciler.layout import Layout
 from reconciler.observe.unit_state import SHOW_PROPERTIES, parse_properties, parse_show
 from reconciler.reading import MIB, read_bounded

@@ -1,0 +1,37 @@
+"""The status file a car publishes on the branch `status/<vehicle>` of its desired-state
+repository (`status.json`), which `lpam fleet status` reads in any clone.
+
+Version 1. Files published before it carry no `version` (version 0): the same two parts,
+the agent's status as that car's lpam wrote it (an agent status version 1 or 2) and the
+app; migrations/car_status_v0_to_v1.py brings one to version 1. Written and read in one
+place, reconciler/publication.py.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from schemas.agent import AgentStatus
+
+
+class PublishedApp(BaseModel):
+    """What the fleet sees of a car's installed app (from `lpam status --json`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str | None = None
+    generation: str | None = None
+    status: str | None = Field(default=None, description="the app's status in the record")
+    running: bool | None = None
+
+
+class CarStatus(BaseModel):
+    """One car's published status: its agent's and its app's (None: no app installed)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    version: Literal[1] = 1
+    agent: AgentStatus
+    app: PublishedApp | None = None

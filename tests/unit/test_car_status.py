@@ -1,0 +1,108 @@
+"""The status a car publishes on `status/<vehicle>` is a typed, versioned document, written
+and read in one module (reconciler/publication.py): what a car writes reads back, and what
+cars of older lpam versions published (no `version`, an agent status version 1) is still
+read; what cannot be read is said, never half-understood."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import migrations
+from migrations import car_status_v0_to_v1
+from reconciler.errors import ConfigError, VersionError
+from reconciler.loading import load
+from reconciler.publication import read_status_file, status_file
+from schemas.agent import AgentStatus, Attempt
+from schemas.fleet import CarStatus
+
+FIXTURES = Path(migrations.__file__).parent / "fixtures" / "car-status" / "v0_to_v1"
+WHERE = Path("status/rav4-07/status.json")
+STATUS = AgentStatus(vehicle="rav4-07", follows="desired-state.yaml", applied_revision="c" * 40,
+                     last_attempt=Attempt(time="2026-11-20T10:00:00+00:00", revision="c" * 40,
+                                          result="applied"))
+APP = {"name": "alpha", "generation": "0123456789ab", "status": "installed", "running": True,
+       "commit": "not published"}
+
+
+def test_what_a_car_publishes_reads_back() -> None:
+    content = status_file(STATUS, APP)
+    body = json.loads(content)
+    assert body["version"] == 1 and set(body["app"]) == {"name", "generation", "status",
+                                                          "running"}
+    assert body["agent"] == STATUS.model_dump(mode="json")  # the agent's part as before
+    read = read_status_file(content, where=WHERE)
+    assert read is not None and read.agent == STATUS and read.app is not None
+    assert (read.app.name, read.app.running) == ("alpha", True)
+    assert read_status_file(status_file(STATUS, None), where=WHERE) == CarStatus(agent=STATUS)
+
+
+def test_a_file_from_before_the_version_is_read() -> None:
+    old = {"agent": {**STATUS.model_dump(mode="json"), "version": 1, "follows": None,
+                     "publication": None},
+           "app": {k: APP[k] for k in ("name", "generation", "status", "running")}}
+    del old["agent"]["follows"], old["agent"]["publication"]
+    read = read_status_file(json.dumps(old).encode(), where=WHERE)
+    assert read is not None and read.agent.applied_revision == "c" * 40
+    assert read.agent.follows is None and read.app is not None and read.app.name == "alpha"
+
+
+def test_no_json_is_nothing_to_show() -> None:
+    assert read_status_file(b"\x00garbage", where=WHERE) is None
+
+
+@pytest.mark.parametrize(("body", "said"), [
+    ({"version": 1, "agent": {"version": 2}, "app": {"name": 7}}, "invalid car's status at "
+     "app.name"),
+    ({"app": None}, "`agent` must be the agent's status"),
+])
+def test_a_damaged_status_says_where(body: dict[str, Any], said: str) -> None:
+    with pytest.raises(ConfigError, match=said) as info:
+        read_status_file(json.dumps(body).encode(), where=WHERE)
+    assert info.value.path == WHERE
+
+
+def test_a_newer_lpams_status_says_so() -> None:
+    with pytest.raises(VersionError, match="newer lpam"):
+        read_status_file(json.dumps({"version": 2, "agent": {}}).encode(), where=WHERE)
+
+
+def pairs() -> list[tuple[Path, Path]]:
+    return [(b, b.with_name(b.name.replace(".before.", ".after.")))
+            for b in sorted(FIXTURES.glob("*.before.yaml"))]
+
+
+@pytest.mark.parametrize(("before", "after"), pairs(), ids=lambda p: p.name)
+def test_car_status_v0_to_v1_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    data = load(before).data
+    original = copy.deepcopy(data)
+    assert car_status_v0_to_v1.upgrade(data) == load(after).data
+    assert data == original, "a step must not modify its input"
+    CarStatus.model_validate(migrations.upgrade("car-status", data, path=before))
+
+
+def test_fleet_status_shows_each_cars_file_as_read_here(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The first branch of a car with a status in JSON counts; a damaged one shows the car
+    and why; a file that is no JSON shows nothing (workflow/fleet.py)."""
+    from reconciler.adapters import clone
+    from reconciler.workflow import fleet
+
+    newer = json.dumps({"version": 9, "agent": {}}).encode()
+    files = [clone.Published("rav4-01", b"no json", 1_700_000_000),
+             clone.Published("rav4-01", status_file(STATUS, APP), 1_700_000_000),
+             clone.Published("rav4-07", status_file(STATUS, None), 1_700_000_100),
+             clone.Published("rav4-07", newer, 1_700_000_200),
+             clone.Published("rav4-09", newer, 1_700_000_300)]
+    monkeypatch.setattr(clone, "published", lambda *a, **k: ("c" * 40, files))
+    tip, rows = fleet.read(Path("clone"))
+    by = {row.vehicle: row for row in rows}
+    assert tip == "c" * 40 and set(by) == {"rav4-01", "rav4-07", "rav4-09"}
+    assert (by["rav4-01"].app, by["rav4-01"].running, by["rav4-01"].up_to_date) == \
+        ("alpha", True, True)
+    assert (by["rav4-07"].app, by["rav4-07"].last_pass) == (None, "applied")
+    assert by["rav4-09"].applied is None and by["rav4-09"].reason is not None
+    assert "newer lpam" in by["rav4-09"].reason

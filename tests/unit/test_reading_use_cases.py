@@ -1,0 +1,73 @@
+"""The read-only use cases the CLI only renders: history's current mark, `logs -f`'s new
+lines, the import's refusal to overwrite, and the operator actions as a closed set."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from reconciler.errors import ConfigError, LpamError
+from reconciler.layout import Layout
+from reconciler.state import read_record, write_record
+from reconciler.workflow.history import history
+from reconciler.workflow.importing import import_legacy
+from reconciler.workflow.logs import Shown, new_output, overlap
+from reconciler.workflow.machine import Machine
+from schemas.operator import OperatorAction
+from schemas.record import HistoryEntry
+from tests.unit.test_gate_execution import running_x
+
+
+def test_history_marks_the_installed_generation_as_applied(tmp_path: Path) -> None:
+    world = running_x(tmp_path)
+    record = read_record(world.layout)
+    assert record.app is not None
+    now = HistoryEntry.of(record.app, time="t2", result="applied")
+    failed = HistoryEntry.of(record.app, time="t3", result="failed")
+    other = now.model_copy(update={"generation": "other", "time": "t1"})
+    write_record(world.layout, record.model_copy(update={"history": [other, now, failed]}))
+    assert [(m.entry.time, m.current) for m in history(world.layout)] == [
+        ("t1", False), ("t2", True), ("t3", False)]
+    assert history(Layout(tmp_path / "empty")) == []
+
+
+class Output:
+    """A service manager whose unit printed `said`, one more batch each time it is asked."""
+
+    def __init__(self, *said: list[str]) -> None:
+        self.said = list(said)
+
+    def logs(self, name: str, lines: int = 20) -> list[str]:
+        return self.said.pop(0)
+
+
+def test_following_prints_only_what_is_new(tmp_path: Path) -> None:
+    assert overlap(["a", "b", "c"], ["b", "c", "d"]) == 2
+    assert overlap(["a"], ["x"]) == 0
+    machine = Machine(Layout(tmp_path),
+                      given_services=Output(["b", "c", "d"], ["d", "e"]))  # type: ignore[arg-type]
+    lines = new_output(machine, Shown(["a", "b", "c"], unit="x.service"), sleep=lambda s: None)
+    assert [next(lines), next(lines)] == ["d", "e"]
+    with pytest.raises(LpamError, match="cannot follow"):
+        next(new_output(machine, Shown(["a"]), sleep=lambda s: None))
+
+
+def test_the_import_never_overwrites(tmp_path: Path) -> None:
+    taken = tmp_path / "desired.yaml"
+    taken.write_text("mine\n")
+    etc = tmp_path / "libpanda.d"
+    etc.mkdir()
+    (etc / "app-manifest.yaml").write_text("\n")
+    (etc / "app").write_text("None\n")
+    with pytest.raises(ConfigError, match="will not overwrite"):
+        import_legacy(Layout(tmp_path), etc, output=taken)
+    assert taken.read_text() == "mine\n"
+    written = tmp_path / "new.yaml"
+    assert import_legacy(Layout(tmp_path), etc, output=written) == written.read_text()
+
+
+def test_operator_actions_are_a_closed_set() -> None:
+    assert [str(a) for a in OperatorAction] == ["start", "stop", "restart"]
+    with pytest.raises(ValueError):
+        OperatorAction("kill")
