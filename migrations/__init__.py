@@ -31,47 +31,51 @@ from migrations import (
 )
 from migrations.step import MigrationError, Step
 from reconciler.errors import ConfigError, VersionError
+from schemas.kinds import DocumentKind
+from schemas.kinds import DocumentKind as K
 
-CURRENT: dict[str, int] = {"desired-state": 1, "state-record": 4, "plan": 2,
-                           "agent-config": 1, "agent-status": 2, "generation-meta": 1,
-                           "car-status": 1}
-
-# kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
-STEPS: dict[str, dict[str, tuple[str, Step]]] = {
-    "desired-state": {"0.0": ("1", desired_state_v0_to_v1.upgrade)},
-    "state-record": {"1": ("2", state_record_v1_to_v2.upgrade),
-                     "2": ("3", state_record_v2_to_v3.upgrade),
-                     "3": ("4", state_record_v3_to_v4.upgrade)},
-    "plan": {"1": ("2", plan_v1_to_v2.upgrade)},
-    "agent-config": {},
-    "agent-status": {"1": ("2", agent_status_v1_to_v2.upgrade)},
-    "generation-meta": {"0": ("1", generation_meta_v0_to_v1.upgrade)},
-    "car-status": {"0": ("1", car_status_v0_to_v1.upgrade)},
+CURRENT: dict[DocumentKind, int] = {
+    K.DESIRED_STATE: 1, K.STATE_RECORD: 4, K.PLAN: 2, K.AGENT_CONFIG: 1, K.AGENT_STATUS: 2,
+    K.GENERATION_META: 1, K.CAR_STATUS: 1,
 }
 
-_MISSING_HINTS = {
-    "desired-state": "add `version: 1` at the top; for an LPAM manifest use `lpam import-lpam`",
-    "state-record": "this state record was not written by lpam; move it aside and run "
+# kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
+STEPS: dict[DocumentKind, dict[str, tuple[str, Step]]] = {
+    K.DESIRED_STATE: {"0.0": ("1", desired_state_v0_to_v1.upgrade)},
+    K.STATE_RECORD: {"1": ("2", state_record_v1_to_v2.upgrade),
+                     "2": ("3", state_record_v2_to_v3.upgrade),
+                     "3": ("4", state_record_v3_to_v4.upgrade)},
+    K.PLAN: {"1": ("2", plan_v1_to_v2.upgrade)},
+    K.AGENT_CONFIG: {},
+    K.AGENT_STATUS: {"1": ("2", agent_status_v1_to_v2.upgrade)},
+    K.GENERATION_META: {"0": ("1", generation_meta_v0_to_v1.upgrade)},
+    K.CAR_STATUS: {"0": ("1", car_status_v0_to_v1.upgrade)},
+}
+
+_MISSING_HINTS: dict[DocumentKind, str] = {
+    K.DESIRED_STATE: "add `version: 1` at the top; for an LPAM manifest use `lpam import-lpam`",
+    K.STATE_RECORD: "this state record was not written by lpam; move it aside and run "
     "`lpam apply` to write a new one",
-    "plan": "this plan was not written by lpam; make a new one with `lpam plan -o FILE`",
-    "agent-config": "add `version: 1` at the top (see the README's fleet section)",
-    "agent-status": "this status file was not written by lpam; move it aside",
-    "generation-meta": "this file was not written by lpam; move it aside",
-    "car-status": "the car publishes a new one with its next status",
+    K.PLAN: "this plan was not written by lpam; make a new one with `lpam plan -o FILE`",
+    K.AGENT_CONFIG: "add `version: 1` at the top (see the README's fleet section)",
+    K.AGENT_STATUS: "this status file was not written by lpam; move it aside",
+    K.GENERATION_META: "this file was not written by lpam; move it aside",
+    K.CAR_STATUS: "the car publishes a new one with its next status",
 }
 
 _NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
 
-_LABELS = {"desired-state": "desired state", "state-record": "state record", "plan": "plan",
-           "agent-config": "agent configuration", "agent-status": "agent status",
-           "generation-meta": "generation metadata",
-           "car-status": "car's published status"}
+_LABELS: dict[DocumentKind, str] = {
+    K.DESIRED_STATE: "desired state", K.STATE_RECORD: "state record", K.PLAN: "plan",
+    K.AGENT_CONFIG: "agent configuration", K.AGENT_STATUS: "agent status",
+    K.GENERATION_META: "generation metadata", K.CAR_STATUS: "car's published status",
+}
 
 Position = Callable[[Sequence[Union[str, int]]], Union[tuple[int, int], tuple[None, None]]]
 
 
 def upgrade(
-    kind: str, data: Any, *, path: Path, position: Position | None = None
+    kind: DocumentKind | str, data: Any, *, path: Path, position: Position | None = None
 ) -> dict[str, Any]:
     """Bring a document of `kind` to CURRENT[kind] by applying pure step functions in order.
 
@@ -81,6 +85,7 @@ def upgrade(
     """
     if kind not in CURRENT:
         raise ValueError(f"unknown document kind {kind!r}")
+    kind = DocumentKind(kind)
     label = _LABELS[kind]
     if not isinstance(data, Mapping):
         # Say what the user wrote in YAML's words, not the parser's class names
@@ -116,7 +121,7 @@ def upgrade(
     return doc
 
 
-def _known_version(kind: str, value: Any, path: Path,
+def _known_version(kind: DocumentKind, value: Any, path: Path,
                    at: tuple[int | None, int | None]) -> str:
     """The document's version as text, if this lpam reads it; a newer one is refused by
     name (the operator must upgrade lpam, not lose fields silently)."""

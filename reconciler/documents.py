@@ -18,6 +18,7 @@ from reconciler.loading import Document, load
 from schemas.agent import AgentConfig
 from schemas.catalog import Catalog, CatalogFault, RawCatalog, normalise
 from schemas.desired import DesiredState
+from schemas.kinds import DocumentKind
 from schemas.plan import Plan
 
 M = TypeVar("M", bound=BaseModel)
@@ -71,7 +72,7 @@ def desired_from(doc: Document) -> DesiredState:
     document is parsed once, whoever looks at it first)."""
     from migrations import upgrade
 
-    data = upgrade("desired-state", doc.data, path=doc.path, position=doc.position)
+    data = upgrade(DocumentKind.DESIRED_STATE, doc.data, path=doc.path, position=doc.position)
     _check_duplicate_repositories(doc, data)
     state: DesiredState = _validate(doc, data, DesiredState, "desired state")
     return state
@@ -111,7 +112,7 @@ def agent_from(doc: Document) -> AgentConfig:
     """The agent's configuration in a document already parsed."""
     from migrations import upgrade
 
-    data = upgrade("agent-config", doc.data, path=doc.path, position=doc.position)
+    data = upgrade(DocumentKind.AGENT_CONFIG, doc.data, path=doc.path, position=doc.position)
     config: AgentConfig = _validate(doc, data, AgentConfig, "agent configuration")
     return config
 
@@ -134,7 +135,8 @@ def catalog_from(doc: Document) -> Catalog:
 
 
 def parse_json(
-    kind: str, text: str, path: Path, model: type[M], *, hint: str, version_key: str = "version"
+    kind: DocumentKind, text: str, path: Path, model: type[M], *, hint: str,
+    version_key: str = "version",
 ) -> M:
     """A JSON document lpam wrote itself (plan, state record): parse, migrate, validate.
 
@@ -220,7 +222,7 @@ def load_plan(path: Path) -> Plan:
 
     text = read_text(path)
     hint = "pass a file written by `lpam plan --out FILE`, or use -f for a desired state"
-    plan = parse_json("plan", text, path, Plan, version_key="format_version", hint=hint)
+    plan = parse_json(DocumentKind.PLAN, text, path, Plan, version_key="format_version", hint=hint)
     if plan.fingerprint != fingerprint(plan):
         line, column = _JsonPositions(path, text, "format_version")(["fingerprint"])
         raise ConfigError("the plan's fingerprint does not match its steps (edited or "

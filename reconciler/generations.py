@@ -29,6 +29,7 @@ from reconciler.layout import Layout, is_generation_id, slug
 from reconciler.planning.model import GenerationKey, app_folder
 from reconciler.reading import KIB, read_bounded
 from schemas.generation import GenerationMeta
+from schemas.kinds import DocumentKind
 
 if TYPE_CHECKING:
     from reconciler.execution.ports import Store
@@ -123,7 +124,7 @@ def read_meta(path: Path) -> Generation | None:
         data = json.loads(read_bounded(path, limit=64 * KIB, follow_symlinks=False))
         if isinstance(data, dict) and "version" not in data:
             data["version"] = 0
-        meta = GenerationMeta.model_validate(upgrade("generation-meta", data, path=path))
+        meta = GenerationMeta.model_validate(upgrade(DocumentKind.GENERATION_META, data, path=path))
     except (FileNotFoundError, ConfigError, ValueError, RecursionError):
         return None
     return Generation(

@@ -56,6 +56,7 @@ from pydantic import ValidationError
 from reconciler.errors import ConfigError
 from schemas.agent import AgentStatus, Publication
 from schemas.fleet import CarStatus, PublishedApp
+from schemas.kinds import DocumentKind
 
 STATUS_FILE = "status.json"
 """The file a car publishes on `status/<vehicle>`."""
@@ -145,7 +146,7 @@ def read_status_file(content: bytes, *, where: Path) -> CarStatus | None:
         return None
     if isinstance(data, dict) and "version" not in data:
         data = {**data, "version": 0}  # published before the file had a version
-    data = upgrade("car-status", data, path=where)
+    data = upgrade(DocumentKind.CAR_STATUS, data, path=where)
     try:
         return CarStatus.model_validate(data)
     except ValidationError as exc:

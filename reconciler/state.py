@@ -28,6 +28,7 @@ from reconciler.errors import ConfigError
 from reconciler.generations import installed_on_disk
 from reconciler.layout import Layout
 from reconciler.reading import MIB, read_bounded
+from schemas.kinds import DocumentKind
 from schemas.record import AppRecord, StateRecord, Stray
 
 if TYPE_CHECKING:
@@ -55,7 +56,7 @@ def read_agent_status(layout: Layout) -> AgentStatus | None:
     path = layout.agent_status
     if not path.exists():
         return None
-    return parse_json("agent-status", read_text(path), path, AgentStatus,
+    return parse_json(DocumentKind.AGENT_STATUS, read_text(path), path, AgentStatus,
                       hint="move the file aside; the next pass writes a new one")
 
 
@@ -100,7 +101,7 @@ def parse_record(text: str, path: Path, *, hint: str | None = None) -> StateReco
 
     hint = hint or DAMAGED_HINT.format(path=path, generations="var/lib/lpam/generations")
     try:
-        return parse_json("state-record", text, path, StateRecord, hint=hint)
+        return parse_json(DocumentKind.STATE_RECORD, text, path, StateRecord, hint=hint)
     except RecursionError:
         raise ConfigError("the state record is nested too deeply to be one lpam wrote",
                           path=path, hint=hint) from None

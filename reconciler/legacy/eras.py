@@ -25,6 +25,7 @@ from reconciler.legacy.files import (
     comment_safe,
 )
 from reconciler.loading import Document, load
+from schemas.kinds import DocumentKind
 from schemas.names import check_app_name, check_owner_repo, check_ref
 
 _HEX40 = re.compile(r"^[0-9a-f]{40}$")
@@ -42,7 +43,7 @@ def from_yaml(files: LpamFiles) -> tuple[dict[str, Any], list[str], list[str]]:
             hint="LPAM wrote `version: 0.0`, `repositories:` and `current:` here",
         )
     if "version" in data:
-        desired = upgrade("desired-state", data, path=path, position=doc.position)
+        desired = upgrade(DocumentKind.DESIRED_STATE, data, path=path, position=doc.position)
         if str(data["version"]).strip() == "1":
             raise doc.error(
                 "this is already an lpam desired state (version 1), not an LPAM manifest",

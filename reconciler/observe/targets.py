@@ -206,16 +206,7 @@ def _resolve_app(
 ) -> AppTarget:
     spec = desired.app
     assert spec is not None
-    candidates = repos
-    if spec.repository is not None:
-        wanted = desired.repository(spec.repository)
-        if wanted is None:
-            raise CatalogError(
-                f"app.repository {spec.repository!r} is not one of the desired repositories "
-                f"({', '.join(r.key for r in repos) or 'none'})",
-                hint="use the key (owner/name) or URL of a listed repository",
-            )
-        candidates = [r for r in repos if r.key == wanted.key]
+    candidates = _candidates(desired, spec, repos)
     found: list[tuple[RepoTarget, CatalogApp]] = []
     unknown: list[RepoTarget] = []
     offered: list[str] = []
@@ -262,6 +253,22 @@ def _resolve_app(
         hint="check the app name, or add the repository that offers it" if not bare else
         f"add {CATALOG_FILE} to that repository, or add the repository that offers the app",
     )
+
+
+def _candidates(desired: DesiredState, spec: AppSpec, repos: list[RepoTarget]
+                ) -> list[RepoTarget]:
+    """The repositories whose catalogs may offer the app: the one `app.repository` names,
+    else every desired repository."""
+    if spec.repository is None:
+        return repos
+    wanted = desired.repository(spec.repository)
+    if wanted is None:
+        raise CatalogError(
+            f"app.repository {spec.repository!r} is not one of the desired repositories "
+            f"({', '.join(r.key for r in repos) or 'none'})",
+            hint="use the key (owner/name) or URL of a listed repository",
+        )
+    return [r for r in repos if r.key == wanted.key]
 
 
 def _app_target(

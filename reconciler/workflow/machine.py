@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 from reconciler.layout import Layout
 from reconciler.reading import open_append
 from reconciler.workflow.events import Output, Report
+from schemas.kinds import ServiceKind
 
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
@@ -41,8 +42,8 @@ def services_for(layout: Layout, override: str | None,
     return services_named(layout, choose(override=override, env=env))
 
 
-def services_named(layout: Layout, name: str) -> Services:
-    if name == "systemd":
+def services_named(layout: Layout, kind: ServiceKind) -> Services:
+    if kind is ServiceKind.SYSTEMD:
         from reconciler.adapters.services.systemd import SystemdServices
 
         return SystemdServices(layout)
@@ -73,7 +74,7 @@ class Machine:
 
     layout: Layout
     given_services: Services | None = None
-    services_name: str = "supervisor"  # which manager `services` makes when first asked
+    services_name: ServiceKind = ServiceKind.SUPERVISOR  # the manager `services` makes first
     given_deps: DependencyPorts | None = None
     network_timeout: float = 60.0
     clock: Callable[[], datetime] = field(default=now)

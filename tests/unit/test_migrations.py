@@ -29,6 +29,7 @@ from reconciler.planning.plan import fingerprint
 from schemas.agent import AgentStatus
 from schemas.desired import DesiredState
 from schemas.generation import GenerationMeta
+from schemas.kinds import DocumentKind
 from schemas.plan import Plan
 from schemas.record import StateRecord
 
@@ -224,7 +225,7 @@ def test_current_version_passes_through(version: object) -> None:
 
 
 @pytest.mark.parametrize("kind", sorted(CURRENT))
-def test_newer_version_is_refused_naming_both(kind: str) -> None:
+def test_newer_version_is_refused_naming_both(kind: DocumentKind) -> None:
     with pytest.raises(VersionError) as info:
         upgrade(kind, {"version": 9}, path=PATH)
     message = info.value.message
@@ -333,3 +334,12 @@ def test_step_raises_migration_error_with_location() -> None:
         desired_state_v0_to_v1.upgrade({"repositories": {"a/b": {"branch": "a b"}}})
     assert info.value.loc == ("repositories", "a/b", "branch")
     assert info.value.hint
+
+
+def test_every_document_kind_has_a_version_a_chain_a_label_and_a_hint() -> None:
+    """The registry is closed over DocumentKind: a kind added without its entries fails
+    here, not on the first document of that kind a car reads."""
+    from migrations import _LABELS, _MISSING_HINTS
+
+    for registry in (CURRENT, STEPS, _LABELS, _MISSING_HINTS):
+        assert set(registry) == set(DocumentKind)

@@ -12,15 +12,16 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from reconciler.errors import ServiceError
+from schemas.kinds import ServiceKind
 
-BACKENDS = ("systemd", "supervisor")
+BACKENDS = tuple(kind.value for kind in ServiceKind)
 ENV_VAR = "LPAM_SERVICES"
 SYSTEMD_BOOTED = Path("/run/systemd/system")
 
 
 def choose(
     *, override: str | None, env: Mapping[str, str], booted: Path = SYSTEMD_BOOTED,
-) -> str:
+) -> ServiceKind:
     """`systemd` or `supervisor`. ServiceError when the flag or variable names neither."""
     for source, value in (("--services", override), (ENV_VAR, env.get(ENV_VAR))):
         if value is None or value == "":
@@ -31,5 +32,5 @@ def choose(
                 hint=f"use {' or '.join(BACKENDS)}, or leave {source} unset to use systemd "
                 "where it runs and supervisord elsewhere",
             )
-        return value
-    return "systemd" if booted.is_dir() else "supervisor"
+        return ServiceKind(value)
+    return ServiceKind.SYSTEMD if booted.is_dir() else ServiceKind.SUPERVISOR
