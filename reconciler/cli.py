@@ -296,15 +296,19 @@ CHANGES_THE_CAR = ("apply", "sync", "agent", "start", "stop", "restart", "rollba
 
 def again(args: argparse.Namespace) -> str:
     """The command that goes on from where this one stopped, as the user would type it:
-    the same root and desired-state file (a saved plan is stale once part of it ran)."""
+    the same root and desired-state file (a saved plan is stale once part of it ran; a
+    rollback's -f names only the gates' file, and the apply that finishes it holds to the
+    generation it returns to)."""
     import shlex
+
+    from reconciler.workflow.operate import resumed_by
 
     parts = ["lpam"]
     root = getattr(args, "root", None)
     if root:
         parts += ["--root", str(root)]
-    parts.append(args.command if args.command != "agent" else "sync")
-    if getattr(args, "file", None) is not None:
+    parts.append(resumed_by(args.command))
+    if args.command != "rollback" and getattr(args, "file", None) is not None:
         parts += ["-f", str(args.file)]
     if getattr(args, "config", None) is not None:
         parts += ["--config", str(args.config)]

@@ -57,6 +57,13 @@ def operate_installed(machine: Machine, action: OperatorAction, *, file: Path | 
         return operate(ctx, action, progress=lambda text: report(Progress(text)))
 
 
+def resumed_by(command: str) -> str:
+    """The command that goes on from where `command` was cut off. A rollback holds the
+    generation it returns to from its first change, so an apply finishes it; another
+    rollback would go one generation further back. The agent's work is one sync pass."""
+    return {"rollback": "apply", "agent": "sync"}.get(command, command)
+
+
 def roll_back(machine: Machine, *, file: Path | None, force: bool, options: ApplyOptions,
               confirm: Callable[[HistoryEntry], bool], report: Report) -> str | None:
     """`lpam rollback`: under the apply lock, the previous good generation is found and
@@ -68,7 +75,8 @@ def roll_back(machine: Machine, *, file: Path | None, force: bool, options: Appl
     desired = load_desired(path) if path.exists() else None
     gate = governing(machine, file, force=force).gate
     with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
-        ctx, _ = machine.context(machine.store(), lock, command="rollback",
+        # what resumes a cut-off rollback is an apply, not another rollback (resumed_by)
+        ctx, _ = machine.context(machine.store(), lock, command=resumed_by("rollback"),
                                  script_timeout=options.script_timeout, report=report,
                                  gate=gate, gate_wait=options.wait)
         entry = previous_good(ctx)

@@ -296,6 +296,42 @@ def test_a_kill_during_a_rollback_converges_to_one_app(
     assert events[-2:] == ["alpha:install:", "alpha:start:"]
 
 
+def test_a_rollback_interrupted_by_ctrl_c_names_the_command_that_finishes_it(
+    lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
+) -> None:
+    """Ctrl-C in a rollback's cutover: lpam says which command resumes it, and that command
+    brings back the generation the rollback was returning to. (Another `lpam rollback`
+    would go one generation further back: the field trial of issue 20 found lpam naming it.)"""
+    builder = make_repo("resume.git")
+    builder.write("libpanda-apps.yaml", "apps:\n  - name: alpha\n")
+    add_app(builder, "alpha", extra={"install": 'touch "$LPAM_ROOT/v1-installing"; sleep 1.5'})
+    builder.commit("alpha v1: installs slowly")
+    builder.push()
+    lpam.desired(desired(git_daemon.url("resume.git"), "alpha"))
+    assert lpam("apply", "--yes").returncode == 0
+    first = lpam.status()["app"]["generation"]
+    add_app(builder, "alpha")
+    builder.commit("alpha v2")
+    builder.push()
+    assert lpam("apply", "--yes").returncode == 0
+    marker = lpam.root / "v1-installing"
+    marker.unlink()
+    proc = lpam.spawn("rollback", "--yes")
+    deadline = time.monotonic() + 60
+    while not marker.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert marker.exists()
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C in the terminal
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    hint = err.split("run `", 1)[1].split("`", 1)[0]
+    assert hint.split()[:3] == ["lpam", "--root", str(lpam.root)]
+    done = lpam(*hint.split()[3:], "--yes")
+    assert done.returncode == 0, done.stderr
+    app = lpam.status()["app"]
+    assert (app["generation"], app["status"]) == (first, "running")
+
+
 def test_services_shutdown_without_supervisord_says_so(lpam: Lpam) -> None:
     done = lpam("services", "shutdown")
     assert done.returncode == 0 and "No supervisord was running" in done.stdout
