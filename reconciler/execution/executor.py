@@ -23,7 +23,6 @@ from concurrent.futures import CancelledError
 from reconciler.errors import Deferred, LpamError, StateWriteError, StopRequested, Terminated
 from reconciler.execution.collection import prune
 from reconciler.execution.context import Context
-from reconciler.execution.journal import Journal
 from reconciler.execution.ports import Gate, Held
 from reconciler.execution.recovery import (
     AdvisoryJournal,
@@ -39,6 +38,7 @@ from reconciler.execution.recovery import (
     unwritable_error,
 )
 from reconciler.execution.steps import check_out, record_checkout
+from reconciler.journal import Journal
 from schemas.plan import CheckoutStep, Phase, Plan, Step
 from schemas.record import AppRecord
 

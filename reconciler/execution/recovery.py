@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 from reconciler.errors import HealthError, LpamError, StateWriteError, StepError
 from reconciler.execution.context import Context
-from reconciler.execution.journal import Journal
 from reconciler.execution.steps import run
+from reconciler.journal import Journal
 from reconciler.planning.lifecycle import app_steps, resume_text, target_of
 from reconciler.planning.model import GenerationKey
 from schemas.enums import StrEnum

@@ -13,7 +13,7 @@ from reconciler.adapters.memory import MemoryGate
 from reconciler.errors import Deferred
 from reconciler.execution.context import Context
 from reconciler.execution.executor import execute
-from reconciler.execution.journal import deferral, interrupted_steps
+from reconciler.journal import deferral, interrupted_steps
 from reconciler.observe.machine import observe
 from reconciler.planning.model import generation_id
 from reconciler.planning.plan import make_plan
