@@ -19,14 +19,14 @@ import json
 import os
 import shutil
 from collections.abc import Collection, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.atomic import fsync_dir, write_atomic
 from reconciler.errors import ConfigError, StepError
-from reconciler.layout import Layout, is_generation_id, slug
-from reconciler.planning.model import GenerationKey, app_folder
+from reconciler.layout import Layout, is_generation_id
+from reconciler.planning.model import Generation as Generation  # re-exported: see below
+from reconciler.planning.model import GenerationKey
 from reconciler.reading import KIB, read_bounded
 from schemas.generation import GenerationMeta
 from schemas.kinds import DocumentKind
@@ -34,38 +34,11 @@ from schemas.kinds import DocumentKind
 if TYPE_CHECKING:
     from reconciler.execution.ports import Store
 
+# `Generation` is a value the engine names (execution/ports.py's AppFolders): it lives with
+# the planning core's values (planning/model.py) so that the engine may import it without
+# this module, which writes the disk (.importlinter's folders contract).
+
 SCRIPTS = ("install.sh", "uninstall.sh", "start.sh", "stop.sh")
-
-
-@dataclass(frozen=True)
-class Generation:
-    """What was staged: enough to find the folder again and to run its scripts."""
-
-    app: str
-    generation: str
-    repository: str = ""
-    commit: str = ""
-    path: str = ""
-    tree: str = ""
-    params: dict[str, str] = field(default_factory=dict)
-    scripts: tuple[str, ...] | None = None  # None: staged by an lpam that did not record it
-    command: tuple[str, ...] | None = None  # scriptless app: how its unit runs
-    launch: str | None = None
-    service: str | None = None  # the unit whose state says whether it runs
-    venv: str | None = None  # the virtual environment of its pip requirements
-    ros: dict[str, str] = field(default_factory=dict)  # ROS repository → commit
-    ros_build: str | None = None  # the workspace build it runs with (a rollback returns to it)
-    ros_workspace: str | None = None
-    ros_user: str | None = None
-
-    @property
-    def folder(self) -> str:
-        """Its folder name in LPAM's layout (the app's name when the path is unknown)."""
-        return app_folder(self.path) if self.path else slug(self.app)
-
-    @property
-    def scriptless(self) -> bool:
-        return self.command is not None or self.launch is not None
 
 
 def stage(layout: Layout, store: Store, gen: Generation) -> Path:

@@ -254,7 +254,7 @@ def as_json(layout: Layout, *, store: Objects | None = None,
 
 def _deferred(layout: Layout) -> dict[str, str] | None:
     """The last apply, when a closed update gate deferred its cutover (from the journal)."""
-    from reconciler.execution.journal import deferral
+    from reconciler.journal import deferral
 
     found = deferral(layout)
     return None if found is None else {"time": found[0], "reason": found[1]}

@@ -7,9 +7,7 @@ from __future__ import annotations
 import getpass
 from pathlib import Path
 
-from reconciler import generations
 from reconciler.execution.context import Context
-from reconciler.legacy import appdir
 from reconciler.planning.model import GenerationKey
 
 
@@ -24,8 +22,9 @@ def prune(ctx: Context, *, keep: int = 3) -> None:
     kept.update(list(dict.fromkeys(reversed(good)))[:keep])
     if record.app is not None:
         kept.add(GenerationKey.of(record.app.name, record.app.generation))
-    generations.prune(ctx.layout, kept)
-    appdir.keep_offered(ctx.layout, ctx.store, record)
+    folders = ctx.app_folders()
+    folders.prune(kept)
+    folders.keep_offered(record)
     _collect_dependencies(ctx)
     pending = {f"{r}.exit" for r in [record.app.run if record.app else None,
                                       *(s.run for s in record.strays)] if r}
@@ -40,7 +39,7 @@ def _collect_dependencies(ctx: Context) -> None:
     ones kept are what `lpam rollback` returns to without a rebuild."""
     if ctx.deps is None:
         return
-    kept = generations.installed_on_disk(ctx.layout)
+    kept = ctx.app_folders().installed()
     ctx.deps.envs.collect({Path(g.venv) for g in kept if g.venv is not None})
     builds: dict[tuple[str, str], set[str]] = {}
     for g in kept:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from reconciler.errors import StateWriteError, StepError
 from reconciler.execution.ports import (
+    AppFolders,
     DependencyPorts,
     Gate,
     Listener,
@@ -56,12 +57,22 @@ class Context:
     # The ROS distribution's setup file a launch app without a build of its own runs inside
     # (None: roslaunch is on PATH already); the caller that chooses adapters gives the probe.
     underlay: Callable[[], Path | None] = field(default=lambda: None)
+    # The generation folders and LPAM's app folders. No default: the disk implementation is
+    # an adapter (adapters/folders.py), which the engine never names; the caller that
+    # chooses adapters gives it.
+    folders: AppFolders | None = None
 
     def dependencies(self) -> DependencyPorts:
         if self.deps is None:  # a caller that plans dependencies must give their ports
             raise StepError("this apply cannot prepare dependencies (no ports given); this "
                             "is a bug in lpam")
         return self.deps
+
+    def app_folders(self) -> AppFolders:
+        if self.folders is None:  # every caller that runs app steps must give the port
+            raise StepError("this apply cannot touch app folders (no port given); this is "
+                            "a bug in lpam")
+        return self.folders
 
     def save(self, record: StateRecord) -> None:
         """Write `record` (a step's intent before its work, its outcome after). Failing,

@@ -20,11 +20,9 @@ import uuid
 from collections.abc import Callable
 from concurrent.futures import CancelledError
 
-from reconciler import generations
 from reconciler.errors import Deferred, LpamError, StateWriteError, StopRequested, Terminated
 from reconciler.execution.collection import prune
 from reconciler.execution.context import Context
-from reconciler.execution.journal import Journal
 from reconciler.execution.ports import Gate, Held
 from reconciler.execution.recovery import (
     AdvisoryJournal,
@@ -40,6 +38,7 @@ from reconciler.execution.recovery import (
     unwritable_error,
 )
 from reconciler.execution.steps import check_out, record_checkout
+from reconciler.journal import Journal
 from schemas.plan import CheckoutStep, Phase, Plan, Step
 from schemas.record import AppRecord
 
@@ -70,7 +69,7 @@ def _execute(plan: Plan, ctx: Context, journal: AdvisoryJournal,
     # As read (settled, strays adopted) — before any exit file is pruned; an apply says
     # from its start that it is under way, and toward which desired state.
     ctx.save(begun(ctx) if record_result else ctx.record)
-    previous = returns_to(ctx.record, generations.present(ctx.layout)) if record_result \
+    previous = returns_to(ctx.record, ctx.app_folders().present()) if record_result \
         else ctx.record.app
     cut_off = pending(ctx.record) if record_result else None
     held: list[Held] = []

@@ -8,7 +8,7 @@ One contract suite (tests/contract/) holds every implementation to the same beha
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
@@ -18,7 +18,9 @@ from reconciler.unit import Unit, UnitState
 from schemas.names import is_hex_commit
 
 if TYPE_CHECKING:
+    from reconciler.planning.model import Generation, GenerationKey
     from reconciler.vehicle.policy import GateState
+    from schemas.record import StateRecord
 
 DEFAULT_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
 """The PATH a script, a build or a unit runs with when lpam's own has none: part of the
@@ -135,6 +137,74 @@ def ambiguous(key: str, ref: str, commits: Sequence[str]) -> RefNotFoundError:
     return RefNotFoundError(
         f"{key}: the abbreviated hash '{ref}' matches {len(commits)} commits: "
         + ", ".join(commits), hint="give more digits of the commit hash")
+
+
+class AppFolders(Protocol):
+    """The app folders on disk: generations (immutable copies of an app folder at a commit,
+    under var/lib/lpam/generations, each with its metadata) and the place the field's scripts
+    find the installed one (`/etc/libpanda.d/apps/<folder>`, with LPAM's manifest kept true).
+
+    Every change is atomic (a folder exported beside its place then renamed, a link renamed
+    over the old one, metadata written whole) and idempotent: a step interrupted anywhere
+    and run again converges. The disk implementation is adapters/folders.py, held to
+    tests/contract/test_folders.py.
+    """
+
+    def stage(self, gen: Generation) -> Path:
+        """The generation's folder, exported from the store at its commit when absent (an
+        existing folder is kept as it is), and its metadata written when absent or
+        unreadable. A tree that is not `gen.tree` is refused (StepError), nothing put in
+        place."""
+        ...
+
+    def ensure(self, gen: Generation) -> Path:
+        """The generation's folder, exported from the store again first if it went missing
+        (so that the app stays stoppable). StepError when the exported tree is not
+        `gen.tree`, or when `gen` does not say where it came from."""
+        ...
+
+    def meta(self, app: str, generation: str) -> Generation | None:
+        """The generation as its metadata says (any version); None when missing, unreadable
+        or invalid: the caller falls back to what the state record says."""
+        ...
+
+    def present(self) -> frozenset[GenerationKey]:
+        """The generations whose folder is on disk (what a plan may reuse unstaged)."""
+        ...
+
+    def installed(self) -> list[Generation]:
+        """Every generation on disk (folder or metadata), from its metadata when readable,
+        else only its name and id: what may still be installed."""
+        ...
+
+    def prune(self, keep: Collection[GenerationKey]) -> None:
+        """Delete every generation not in `keep`, folder and metadata (missing: nothing)."""
+        ...
+
+    def point(self, folder: str, target: Path) -> Path:
+        """Make `/etc/libpanda.d/apps/<folder>` a link to `target` (switched atomically;
+        a folder LPAM left there is moved aside, never deleted); returns that path."""
+        ...
+
+    def release(self, folder: str, target: Path) -> None:
+        """Remove `folder`'s link only while it still leads to `target` (the link of
+        another generation, or a folder, is kept)."""
+        ...
+
+    def set_current(self, folder: str | None) -> None:
+        """Where LPAM's manifest exists, make it name `folder` as the current app (None:
+        none); without one, nothing is written."""
+        ...
+
+    def service_of(self, folder: Path) -> str | None:
+        """The unit an LPAM app folder's `service` file names; None without a valid one."""
+        ...
+
+    def keep_offered(self, record: StateRecord) -> None:
+        """On a vehicle that used LPAM, every app the record's repositories offer keeps a
+        folder in `/etc/libpanda.d/apps` (exported from the store when missing); a folder
+        LPAM made and the installed app's link are never touched."""
+        ...
 
 
 class Scripts(Protocol):

@@ -21,11 +21,10 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from reconciler import generations
 from reconciler.errors import HealthError, LpamError, StateWriteError, StepError
 from reconciler.execution.context import Context
-from reconciler.execution.journal import Journal
 from reconciler.execution.steps import run
+from reconciler.journal import Journal
 from reconciler.planning.lifecycle import app_steps, resume_text, target_of
 from reconciler.planning.model import GenerationKey
 from schemas.enums import StrEnum
@@ -181,7 +180,7 @@ def roll_back(failed: Step, exc: LpamError, previous: AppRecord | None, ctx: Con
             and app.generation == previous.generation:
         # its stop.sh just failed: the old app is brought back up, not stopped again
         record = record.model_copy(update={"app": app.model_copy(update={"status": "starting"})})
-    steps = app_steps(record, target, generations.present(ctx.layout), start=start,
+    steps = app_steps(record, target, ctx.app_folders().present(), start=start,
                       verify=False)
     if not steps:
         return RollbackResult(Outcome.NONE)

@@ -16,8 +16,7 @@ from pathlib import Path
 from reconciler.errors import HealthError, ServiceError, StepError
 from reconciler.execution.context import Context
 from reconciler.execution.ports import DEFAULT_PATH, SOURCE_THEN_EXEC
-from reconciler.generations import Generation
-from reconciler.planning.model import app_folder
+from reconciler.planning.model import Generation, app_folder
 from reconciler.unit import Unit, UnitState, unit_name
 from schemas.record import AppRecord
 

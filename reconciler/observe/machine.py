@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler import generations
-from reconciler.execution.journal import interrupted_steps
+from reconciler.journal import interrupted_steps
 from reconciler.layout import Layout
 from reconciler.legacy import appdir
 from reconciler.observe.adoption import adoptable

@@ -128,15 +128,15 @@ def _resolve_repo(
 def sound_copy(store: Resolving, key: str, url: str, *, renew: bool, notice: Notice) -> None:
     """Make sure the key's copy in the store is sound before anything reads it: a damaged
     copy is fetched anew from `url` when `renew` (apply), else refused (a plan changes
-    nothing); see execution/cache.py."""
-    from reconciler.execution import cache
+    nothing); see reconciler/damage.py."""
+    from reconciler import damage
 
     found = store.damage(key)
     if found is None:
         return
     if not renew:
-        raise cache.refused(key, url, found, store.location(key))
-    notice(cache.renew(store, key, url, found))
+        raise damage.refused(key, url, found, store.location(key))
+    notice(damage.renew(store, key, url, found))
 
 
 def _resolve_ref(key: str, url: str, ref: str | None, store: Resolving,

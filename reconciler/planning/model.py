@@ -218,6 +218,37 @@ class DepsObserved:
     ros_installed: dict[str, str] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class Generation:
+    """What was staged: enough to find the folder again and to run its scripts."""
+
+    app: str
+    generation: str
+    repository: str = ""
+    commit: str = ""
+    path: str = ""
+    tree: str = ""
+    params: dict[str, str] = field(default_factory=dict)
+    scripts: tuple[str, ...] | None = None  # None: staged by an lpam that did not record it
+    command: tuple[str, ...] | None = None  # scriptless app: how its unit runs
+    launch: str | None = None
+    service: str | None = None  # the unit whose state says whether it runs
+    venv: str | None = None  # the virtual environment of its pip requirements
+    ros: dict[str, str] = field(default_factory=dict)  # ROS repository → commit
+    ros_build: str | None = None  # the workspace build it runs with (a rollback returns to it)
+    ros_workspace: str | None = None
+    ros_user: str | None = None
+
+    @property
+    def folder(self) -> str:
+        """Its folder name in LPAM's layout (the app's name when the path is unknown)."""
+        return app_folder(self.path) if self.path else slug(self.app)
+
+    @property
+    def scriptless(self) -> bool:
+        return self.command is not None or self.launch is not None
+
+
 def build_key(commits: dict[str, str]) -> str:
     """The key of a ROS build: its sources' names and commits."""
     body = json.dumps(commits, sort_keys=True).encode()

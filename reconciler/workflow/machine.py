@@ -135,6 +135,7 @@ class Machine:
                 desired: DesiredRef | None = None) -> tuple[Context, Path]:
         """What the steps of one run may touch, and the log of its scripts and commands."""
         from reconciler.adapters.catkin import find_underlay
+        from reconciler.adapters.folders import DiskFolders
         from reconciler.adapters.scripts import ScriptRunner
         from reconciler.execution.context import Context
         from reconciler.state import read_record
@@ -149,6 +150,7 @@ class Machine:
             deps=self.deps, log=CommandLog(log, report), stop_requested=self.stop_requested,
             gate=gate, gate_wait=gate_wait, listener=listener,
             command=resume or f"lpam {command}", desired=desired, underlay=find_underlay,
+            folders=DiskFolders(layout=self.layout, store=store),
         )
         return ctx, log
 

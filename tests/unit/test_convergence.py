@@ -29,6 +29,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from reconciler import generations
+from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import Crash, MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
 from reconciler.errors import ServiceError, StepError
@@ -186,7 +187,8 @@ class World:
                          now=NOW, lpam_version="t")
         ctx = Context(layout=self.layout, store=self.store, scripts=self.scripts,
                       services=self.services, record=read_record(self.layout),
-                      clock=lambda: NOW, monotonic=self.monotonic, sleep=self.sleep)
+                      clock=lambda: NOW, monotonic=self.monotonic, sleep=self.sleep,
+                      folders=DiskFolders(layout=self.layout, store=self.store))
         try:
             execute(plan, ctx, progress=lambda _: None)
         except (StepError, Crash):

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 
+from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import Crash
 from reconciler.errors import HealthError, LpamError, StateWriteError
 from reconciler.execution import context as context_module
@@ -78,7 +79,8 @@ class Car(World):
 
         return Saving(layout=self.layout, store=self.store, scripts=self.scripts,
                       services=self.services, record=read_record(self.layout),
-                      clock=lambda: NOW, monotonic=self.monotonic, sleep=self.sleep)
+                      clock=lambda: NOW, monotonic=self.monotonic, sleep=self.sleep,
+                      folders=DiskFolders(layout=self.layout, store=self.store))
 
     def run(self, name: str) -> LpamError | None:
         """One `lpam apply` of `name`, as the workflow makes it (a rollback that was cut

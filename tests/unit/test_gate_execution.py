@@ -8,11 +8,12 @@ from pathlib import Path
 
 import pytest
 
+from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import MemoryGate
 from reconciler.errors import Deferred
 from reconciler.execution.context import Context
 from reconciler.execution.executor import execute
-from reconciler.execution.journal import deferral, interrupted_steps
+from reconciler.journal import deferral, interrupted_steps
 from reconciler.observe.machine import observe
 from reconciler.planning.model import generation_id
 from reconciler.planning.plan import make_plan
@@ -35,7 +36,8 @@ def context(world: World, gate: MemoryGate | None, wait: float = 0.0) -> Context
     return Context(layout=world.layout, store=world.store, scripts=world.scripts,
                    services=world.services, record=read_record(world.layout),
                    clock=lambda: NOW, monotonic=world.monotonic, sleep=world.sleep,
-                   gate=gate, gate_wait=wait)
+                   gate=gate, gate_wait=wait,
+                   folders=DiskFolders(layout=world.layout, store=world.store))
 
 
 def apply(world: World, gate: MemoryGate | None, wait: float = 0.0) -> None:

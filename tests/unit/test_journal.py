@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from reconciler.errors import ConfigError
-from reconciler.execution.journal import Journal, interrupted_steps, read_events
+from reconciler.journal import Journal, interrupted_steps, read_events
 from reconciler.layout import Layout
 
 NOW = datetime(2026, 11, 23, 8, 0, tzinfo=timezone.utc)

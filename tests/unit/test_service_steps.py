@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
 from reconciler.errors import HealthError, StepError
@@ -53,7 +54,8 @@ def machine(tmp_path: Path, services: MemoryServices, files: dict[str, str] | No
     clock = Clock()
     return Context(layout=layout, store=store, scripts=scripts, services=services,
                    record=StateRecord(lineage="L"), clock=lambda: NOW,
-                   monotonic=clock.monotonic, sleep=clock.sleep), scripts
+                   monotonic=clock.monotonic, sleep=clock.sleep,
+                   folders=DiskFolders(layout=layout, store=store)), scripts
 
 
 def args(*, service: str | None = None, command: list[str] | None = None,

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
 from reconciler.errors import StepError
@@ -41,7 +42,7 @@ def machine(tmp_path: Path, record: StateRecord) -> tuple[Context, MemoryScripts
         record = write_record(layout, record)
     return Context(layout=layout, store=store, scripts=scripts, services=MemoryServices(),
                    record=record,
-                   clock=lambda: NOW), scripts
+                   clock=lambda: NOW, folders=DiskFolders(layout=layout, store=store)), scripts
 
 
 def wanted(app: str, *, tree: str | None = None) -> dict[str, str | dict[str, str] | None]:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
 from reconciler.errors import ServiceError
@@ -28,7 +29,8 @@ class Failing(MemoryServices):
 
 def context(tmp_path: Path, services: MemoryServices) -> Context:
     layout = Layout(tmp_path)
-    return Context(layout=layout, store=MemoryStore(layout=layout, remotes={}),
+    store = MemoryStore(layout=layout, remotes={})
+    return Context(layout=layout, store=store, folders=DiskFolders(layout=layout, store=store),
                    scripts=MemoryScripts(runs_dir=layout.runs), services=services,
                    record=StateRecord(lineage="L"),
                    clock=lambda: datetime(2026, 11, 24, tzinfo=timezone.utc))

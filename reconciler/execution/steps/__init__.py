@@ -9,7 +9,7 @@ scripts never use `set -e`), so after `start.sh` the app counts as running only 
 service manager says that unit is active, and after `stop.sh` only as stopped when the
 unit is not. A scriptless app's unit is written by lpam and driven through the manager.
 Either way, every script and unit runs in `/etc/libpanda.d/apps/<folder>`, the link to the
-generation (reconciler/legacy/appdir.py), where the field's scripts expect it.
+generation (the AppFolders port, execution/ports.py), where the field's scripts expect it.
 
 Repository steps are idempotent on their outcome (a checkout already at its commit is left
 alone). Lifecycle steps write their *intent* to the state record before the script runs

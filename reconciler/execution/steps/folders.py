@@ -6,13 +6,10 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from reconciler import generations
 from reconciler.errors import StepError
 from reconciler.execution.context import Context
 from reconciler.execution.supervision import runtime
-from reconciler.generations import Generation
-from reconciler.legacy import appdir
-from reconciler.planning.model import app_folder
+from reconciler.planning.model import Generation, app_folder
 from reconciler.unit import unit_name
 from schemas.generation import AppGeneration
 from schemas.record import AppRecord
@@ -54,7 +51,7 @@ def as_record(gen: Generation, user: str | None) -> AppRecord:
 
 def on_disk(ctx: Context, app: str, generation: str, fallback: Generation) -> Generation:
     """The generation as its metadata file says, or `fallback` without one."""
-    meta = generations.read_meta(ctx.layout.generation_meta(app, generation))
+    meta = ctx.app_folders().meta(app, generation)
     return meta if meta is not None else fallback
 
 
@@ -62,7 +59,7 @@ def with_runtime(ctx: Context, gen: Generation) -> Generation:
     """`gen` as a step wants it, with the runtime its staging recorded when the step does
     not say (a rollback's steps come from the state record, which keeps no environment or
     ROS build: the generation's metadata does, so it returns to the build that worked)."""
-    meta = generations.read_meta(ctx.layout.generation_meta(gen.app, gen.generation))
+    meta = ctx.app_folders().meta(gen.app, gen.generation)
     if meta is None or gen.venv is not None or gen.ros_build is not None:
         return gen
     return replace(gen, venv=meta.venv, ros=meta.ros, ros_build=meta.ros_build,
@@ -81,8 +78,8 @@ def of_record(ctx: Context, app: AppRecord) -> Generation:
 def place(ctx: Context, gen: Generation) -> Path:
     """The generation's folder (restored from git first if it went missing), reachable at
     `/etc/libpanda.d/apps/<folder>`: that path, where the field's scripts expect it."""
-    folder = generations.ensure(ctx.layout, ctx.store, gen)
-    return appdir.point(ctx.layout, gen.folder, folder)
+    folders = ctx.app_folders()
+    return folders.point(gen.folder, folders.ensure(gen))
 
 
 def run_script(ctx: Context, gen: Generation, script: str, params: dict[str, str],

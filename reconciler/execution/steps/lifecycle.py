@@ -11,7 +11,6 @@ import getpass
 from pathlib import Path
 from typing import Literal
 
-from reconciler import generations
 from reconciler.errors import ServiceError, StepError
 from reconciler.execution.context import Context
 from reconciler.execution.steps.folders import (
@@ -25,9 +24,7 @@ from reconciler.execution.steps.folders import (
 )
 from reconciler.execution.steps.strays import leave
 from reconciler.execution.supervision import await_unit, runtime, unit_for
-from reconciler.generations import Generation
-from reconciler.legacy import appdir
-from reconciler.planning.model import app_folder
+from reconciler.planning.model import Generation, app_folder
 from reconciler.unit import unit_name
 from schemas.plan import (
     AdoptStep,
@@ -46,7 +43,7 @@ def stage(step: StageStep, ctx: Context) -> None:
     scriptless app, have the service manager check the unit it will run (a unit that
     cannot run is refused now, while the old app still runs, not after it was stopped)."""
     gen = staged(step.app, step.id, ctx)
-    folder = generations.stage(ctx.layout, ctx.store, gen)
+    folder = ctx.app_folders().stage(gen)
     if gen.scriptless:
         try:
             ctx.services.check(unit_for(ctx, as_record(gen, step.app.user), folder,
@@ -113,9 +110,9 @@ def uninstall(step: UninstallStep, ctx: Context) -> None:
     # The generation stays until the apply succeeds: a failed cutover reinstalls it.
     app = installed(step.app, step.id, ctx)
     _lifecycle(ctx, app, "uninstall", "uninstalling", None)
-    appdir.release(ctx.layout, app_folder(app.path),
-                   ctx.layout.generation_dir(app.name, app.generation))
-    appdir.set_current(ctx.layout, None)
+    folders = ctx.app_folders()
+    folders.release(app_folder(app.path), ctx.layout.generation_dir(app.name, app.generation))
+    folders.set_current(None)
 
 
 def install(step: InstallStep, ctx: Context) -> None:
@@ -132,7 +129,7 @@ def install(step: InstallStep, ctx: Context) -> None:
     if not ctx.layout.generation_dir(gen.app, gen.generation).is_dir():
         raise StepError(f"{gen.app}: generation {gen.generation} was not staged")
     app = as_record(gen, step.app.user).model_copy(update={"good": step.good})
-    appdir.set_current(ctx.layout, gen.folder)
+    ctx.app_folders().set_current(gen.folder)
     if gen.ros_build is not None and gen.ros_workspace is not None:
         # the field's scripts look for the sources in the workspace's own src/
         user = gen.ros_user or getpass.getuser()
@@ -153,8 +150,9 @@ def adopt(step: AdoptStep, ctx: Context) -> None:
     app = as_record(gen, step.app.user).model_copy(update={"status": status, "good": True})
     others = [s for s in ctx.record.strays if s.folder != step.folder]
     ctx.save(ctx.record.model_copy(update={"app": app, "strays": others}))
-    appdir.point(ctx.layout, gen.folder, where)
-    appdir.set_current(ctx.layout, gen.folder)
+    folders = ctx.app_folders()
+    folders.point(gen.folder, where)
+    folders.set_current(gen.folder)
 
 
 def configure(step: ConfigureStep, ctx: Context) -> None:

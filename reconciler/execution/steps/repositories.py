@@ -5,8 +5,8 @@ Idempotent on their outcome: a checkout already at its commit is left alone.
 
 from __future__ import annotations
 
+from reconciler import damage
 from reconciler.errors import StoreDamagedError
-from reconciler.execution import cache
 from reconciler.execution.context import Context
 from reconciler.execution.steps.folders import known
 from schemas.plan import CheckoutStep, RemoveStep
@@ -25,7 +25,7 @@ def check_out(step: CheckoutStep, ctx: Context) -> None:
     try:
         present = ctx.store.origin_url(key) == url and ctx.store.has_commit(key, commit)
     except StoreDamagedError as exc:  # since a saved plan was made: the store is a cache
-        ctx.log(cache.renew(ctx.store, key, url, exc.damage))
+        ctx.log(damage.renew(ctx.store, key, url, exc.damage))
         present = ctx.store.has_commit(key, commit)
     if not present:
         ctx.store.fetch(key, url)

@@ -11,8 +11,7 @@ from reconciler.errors import StepError
 from reconciler.execution.context import Context
 from reconciler.execution.steps.folders import on_disk, run_script
 from reconciler.execution.supervision import await_unit
-from reconciler.generations import Generation
-from reconciler.legacy import appdir
+from reconciler.planning.model import Generation
 from schemas.generation import StrayGeneration
 from schemas.record import Stray
 
@@ -49,7 +48,7 @@ def _script(ctx: Context, stray: Stray, what: Leaving) -> None:
         gen = on_disk(ctx, stray.name, stray.generation, fallback)
         run_script(ctx, gen, f"{what}.sh", stray.params, run)
         if what == "uninstall":
-            appdir.release(ctx.layout, gen.folder,
+            ctx.app_folders().release(gen.folder,
                            ctx.layout.generation_dir(gen.app, gen.generation))
     replace(None if what == "uninstall" else
             stray.model_copy(update={"stopped": True, "pending": None, "run": None}))
@@ -60,7 +59,7 @@ def _lpam_script(ctx: Context, stray: Stray, name: str, what: Leaving, run: str,
     """LPAM's app, in its own folder: its stop.sh's exit code is not trusted."""
     folder = ctx.layout.libpanda_apps / name
     ctx.scripts.run(stray.name, folder, f"{what}.sh", stray.params, run=run)
-    unit = appdir.service_of(folder)
+    unit = ctx.app_folders().service_of(folder)
     if what == "stop" and unit is not None:
         try:
             await_unit(ctx, stray.name, unit, active=False, script="stop.sh")
@@ -68,4 +67,4 @@ def _lpam_script(ctx: Context, stray: Stray, name: str, what: Leaving, run: str,
             replace(stray.model_copy(update={"pending": what, "run": None}))
             raise
     if what == "uninstall":
-        appdir.set_current(ctx.layout, None)
+        ctx.app_folders().set_current(None)

@@ -15,6 +15,9 @@ regular file aside to `journal.jsonl.damaged-<time>` and starts afresh, saying s
 line is appended through `reading.open_append`, which never follows a link and never
 waits on a FIFO, so a link planted mid-apply is refused (a ConfigError naming the file)
 instead of being written through.
+
+The engine writes it (`Journal`) and the probes read it (`interrupted_steps`, `deferral`):
+it sits below both, beside the state record, whose file it accompanies.
 """
 
 from __future__ import annotations

@@ -2,19 +2,23 @@
 
 Place in the flow: `observe/targets.py` checks each repository's copy before plan or apply
 reads it, and the checkout step of a saved plan meets damage when it reads one; both come
-here. Apply fetches the repository anew (`Store.renew`: network first, the damaged copy
-kept aside) and goes on; a plan, which must change nothing, refuses the copy and says what
-the next apply does. No network means no change at all: the running app and the damaged
-copy stay as they were, and the error says so.
+here (so it sits below both the engine and the probes). Apply fetches the repository anew
+(`Store.renew`: network first, the damaged copy kept aside) and goes on; a plan, which
+must change nothing, refuses the copy and says what the next apply does. No network means
+no change at all: the running app and the damaged copy stay as they were, and the error
+says so.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from reconciler.errors import GitError, StoreDamagedError
-from reconciler.execution.ports import Store
 from schemas.names import redact
+
+if TYPE_CHECKING:
+    from reconciler.execution.ports import Store
 
 
 def renew(store: Store, key: str, url: str, damage: str) -> str:
