@@ -431,20 +431,16 @@ def _show_plan(args: argparse.Namespace, plan: Plan) -> int:
 
 
 def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
-    from reconciler.documents import load_plan
-    from reconciler.workflow.applying import apply_file, apply_saved
+    from reconciler.workflow.applying import apply_file, apply_plan_file
 
     if args.planfile is not None and args.file is not None:
         raise LpamError("give either a plan file or -f FILE, not both")
     options = _options(args, keep_generations=args.keep_generations, release=args.release,
                        wait=args.wait)
-    # Bad input is rejected before the lock is taken, so it never waits on another apply.
     if args.planfile is not None:
-        saved = load_plan(args.planfile)
-        machine = _machine(args, layout)
         print()
-        done = apply_saved(machine, saved, str(args.planfile), options=options,
-                           report=Terminal())
+        done = apply_plan_file(_machine(args, layout), args.planfile, options=options,
+                               report=Terminal())
     else:
         done = apply_file(_machine(args, layout), _desired_path(args, layout),
                           options=options, confirm=lambda plan: _confirm(args),

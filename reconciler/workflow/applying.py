@@ -110,6 +110,17 @@ def finishes_rollback(made: Plan) -> bool:
     return any(c.address == "rollback" for c in made.changes)
 
 
+def apply_plan_file(machine: Machine, path: Path, *, options: ApplyOptions,
+                    report: Report) -> Applied:
+    """`lpam apply PLANFILE`: the saved plan is read, validated step by step and its seal
+    checked before anything waits for the lock (a tampered plan is refused at once, at its
+    line and column), then applied as `apply_saved` says."""
+    from reconciler.documents import load_plan
+
+    saved = load_plan(path)
+    return apply_saved(machine, saved, str(path), options=options, report=report)
+
+
 def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOptions,
                 report: Report) -> Applied:
     """`lpam apply PLANFILE`: refused when it is stale, edited, offline or inexact. A plan
