@@ -1,7 +1,8 @@
 """Generations: immutable copies of app folders under `var/lib/lpam/generations/<app>/<id>`.
 
 Each generation has a small metadata file beside it (`<id>.json`, a versioned document:
-schemas/generation.py GenerationMeta): the app, where it was
+schemas/generation.py GenerationMeta, which planning/model.py's `Generation` extends with
+its folder only, so the engine's value is that file's model): the app, where it was
 copied from (repository, commit, folder, tree) and which lifecycle scripts it had. That
 file is what lets lpam act safely without its state record — a lost record still leaves
 enough on disk to stop and uninstall the app with its *own* scripts and parameters — and
@@ -28,7 +29,6 @@ from reconciler.layout import Layout, is_generation_id
 from reconciler.planning.model import Generation as Generation  # re-exported: see below
 from reconciler.planning.model import GenerationKey
 from reconciler.reading import KIB, read_bounded
-from schemas.generation import GenerationMeta
 from schemas.kinds import DocumentKind
 
 if TYPE_CHECKING:
@@ -43,18 +43,13 @@ SCRIPTS = ("install.sh", "uninstall.sh", "start.sh", "stop.sh")
 
 def stage(layout: Layout, store: Store, gen: Generation) -> Path:
     """Copy the app folder at its commit into place (once) and write its metadata."""
-    dest = layout.generation_dir(gen.app, gen.generation)
+    dest = layout.generation_dir(gen.name, gen.generation)
     if not dest.is_dir():
         _export(layout, store, gen, dest)
-    meta = layout.generation_meta(gen.app, gen.generation)
+    meta = layout.generation_meta(gen.name, gen.generation)
     if read_meta(meta) is None:
         scripts = [s for s in SCRIPTS if os.path.lexists(dest / s)]
-        body = GenerationMeta(
-            name=gen.app, generation=gen.generation, repository=gen.repository,
-            commit=gen.commit, path=gen.path, tree=gen.tree, params=gen.params,
-            scripts=scripts, command=None if gen.command is None else list(gen.command),
-            launch=gen.launch, service=gen.service, venv=gen.venv, ros=gen.ros,
-            ros_build=gen.ros_build, ros_workspace=gen.ros_workspace, ros_user=gen.ros_user)
+        body = gen.model_copy(update={"scripts": scripts})
         write_atomic(meta, json.dumps(body.model_dump(mode="json"), indent=2,
                                       sort_keys=True) + "\n")
     return dest
@@ -62,11 +57,11 @@ def stage(layout: Layout, store: Store, gen: Generation) -> Path:
 
 def ensure(layout: Layout, store: Store, gen: Generation) -> Path:
     """The generation's folder, copied out of git again first if it went missing."""
-    dest = layout.generation_dir(gen.app, gen.generation)
+    dest = layout.generation_dir(gen.name, gen.generation)
     if dest.is_dir():
         return dest
     if not (gen.repository and gen.commit and gen.tree):
-        raise StepError(f"{gen.app}: generation {gen.generation} is missing from disk and "
+        raise StepError(f"{gen.name}: generation {gen.generation} is missing from disk and "
                         "lpam does not know where it came from",
                         hint=f"restore {dest} from a backup")
     _export(layout, store, gen, dest)
@@ -80,7 +75,7 @@ def _export(layout: Layout, store: Store, gen: Generation, dest: Path) -> None:
     tree = store.export_folder(gen.repository, gen.commit, gen.path, tmp)
     if tree != gen.tree:
         shutil.rmtree(tmp, ignore_errors=True)
-        raise StepError(f"{gen.app}: the app folder's content ({tree[:12]}) is not what was "
+        raise StepError(f"{gen.name}: the app folder's content ({tree[:12]}) is not what was "
                         f"planned ({gen.tree[:12]})",
                         hint="the repository changed under lpam; run `lpam plan` again")
     os.replace(tmp, dest)
@@ -97,16 +92,10 @@ def read_meta(path: Path) -> Generation | None:
         data = json.loads(read_bounded(path, limit=64 * KIB, follow_symlinks=False))
         if isinstance(data, dict) and "version" not in data:
             data["version"] = 0
-        meta = GenerationMeta.model_validate(upgrade(DocumentKind.GENERATION_META, data, path=path))
+        return Generation.model_validate(
+            upgrade(DocumentKind.GENERATION_META, data, path=path))
     except (FileNotFoundError, ConfigError, ValueError, RecursionError):
         return None
-    return Generation(
-        app=meta.name, generation=meta.generation, repository=meta.repository,
-        commit=meta.commit, path=meta.path, tree=meta.tree, params=dict(meta.params),
-        scripts=None if meta.scripts is None else tuple(meta.scripts),
-        command=None if meta.command is None else tuple(meta.command), launch=meta.launch,
-        service=meta.service, venv=meta.venv, ros=dict(meta.ros), ros_build=meta.ros_build,
-        ros_workspace=meta.ros_workspace, ros_user=meta.ros_user)
 
 
 def on_disk(layout: Layout) -> Iterator[tuple[str, str]]:
@@ -133,7 +122,7 @@ def installed_on_disk(layout: Layout) -> list[Generation]:
     found = []
     for folder, gen in on_disk(layout):
         meta = read_meta(layout.generation_meta(folder, gen))
-        found.append(meta if meta is not None else Generation(app=folder, generation=gen))
+        found.append(meta if meta is not None else Generation(name=folder, generation=gen))
     return found
 
 

@@ -84,7 +84,7 @@ def found_installed(layout: Layout) -> list[Stray]:
     hold the CAN hardware, so each is stopped and uninstalled before any app is installed."""
     from reconciler.legacy.appdir import lpam_current
 
-    strays = [Stray(name=g.app, generation=g.generation, params=g.params,
+    strays = [Stray(name=g.name, generation=g.generation, params=g.params,
                     service=g.service if g.scriptless else None)
               for g in installed_on_disk(layout)]
     legacy = lpam_current(layout)

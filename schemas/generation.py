@@ -69,7 +69,9 @@ class GenerationMeta(GenerationFields):
     runtime it was staged with (its environment, its ROS build) for a rollback. Version
     1 is the first with a version (reconciler/generations.py reads older files through
     migrations/generation_meta_v0_to_v1.py). Unknown keys are ignored, as they always
-    were: the file is a cache of what the stage step knew."""
+    were: the file is a cache of what the stage step knew. The engine holds a generation
+    as this very model (reconciler/planning/model.py `Generation` adds its folder only),
+    so what it stages is what this file says."""
 
     model_config = ConfigDict(extra="ignore", frozen=True)
 

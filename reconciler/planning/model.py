@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 from reconciler.layout import slug
 from reconciler.unit import UnitState
+from schemas.generation import GenerationMeta
 from schemas.record import StateRecord
 
 UNKNOWN = "(known after fetch)"  # a value a plan cannot know without the network
@@ -128,7 +129,11 @@ class Deps:
 
 @dataclass(frozen=True)
 class AppTarget:
-    """The desired app. `tree`/`path` are None when its commit is not fetched yet.
+    """The desired app, the planner's input from the desired state: what it should run
+    and how it is checked (`health`) and what it depends on (`deps`, resolved to
+    commits). It is not a generation: the planner turns it into a step's
+    `AppGeneration` (schemas/generation.py), which the executor stages as a `Generation`
+    (below). `tree`/`path` are None when its commit is not fetched yet.
 
     A script app runs by its lifecycle scripts, and `service` (from its `service` file)
     names the unit whose state says whether it runs. A scriptless app gives `command` or
@@ -218,35 +223,18 @@ class DepsObserved:
     ros_installed: dict[str, str] = field(default_factory=dict)
 
 
-@dataclass(frozen=True)
-class Generation:
-    """What was staged: enough to find the folder again and to run its scripts."""
-
-    app: str
-    generation: str
-    repository: str = ""
-    commit: str = ""
-    path: str = ""
-    tree: str = ""
-    params: dict[str, str] = field(default_factory=dict)
-    scripts: tuple[str, ...] | None = None  # None: staged by an lpam that did not record it
-    command: tuple[str, ...] | None = None  # scriptless app: how its unit runs
-    launch: str | None = None
-    service: str | None = None  # the unit whose state says whether it runs
-    venv: str | None = None  # the virtual environment of its pip requirements
-    ros: dict[str, str] = field(default_factory=dict)  # ROS repository → commit
-    ros_build: str | None = None  # the workspace build it runs with (a rollback returns to it)
-    ros_workspace: str | None = None
-    ros_user: str | None = None
+class Generation(GenerationMeta):
+    """A staged generation as the engine works with it: the metadata file beside it on disk
+    (schemas/generation.py `GenerationMeta`, read by reconciler/generations.py), built from
+    a step's `AppGeneration` and turned into the record's `AppRecord` by field copies, all
+    of one family of models (`GenerationFields`). It adds only where its folder lives
+    (a rule of lpam's layout, which the schemas do not know), so it writes and reads the
+    very same file. `user` stays None: the metadata file never kept it (the record does)."""
 
     @property
     def folder(self) -> str:
         """Its folder name in LPAM's layout (the app's name when the path is unknown)."""
-        return app_folder(self.path) if self.path else slug(self.app)
-
-    @property
-    def scriptless(self) -> bool:
-        return self.command is not None or self.launch is not None
+        return app_folder(self.path) if self.path else slug(self.name)
 
 
 def build_key(commits: dict[str, str]) -> str:

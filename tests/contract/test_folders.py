@@ -40,7 +40,7 @@ def folders(layout: Layout) -> AppFolders:
 
 
 def gen(generation: str = GEN_OLD, commit: str = OLD, tree: str = TREE_OLD) -> Generation:
-    return Generation(app="x", generation=generation, repository=KEY, commit=commit,
+    return Generation(name="x", generation=generation, repository=KEY, commit=commit,
                       path="x", tree=tree, params={"K": "1"})
 
 
@@ -75,7 +75,7 @@ def test_ensure_refuses_a_tree_mismatch_and_an_unknown_origin(folders: AppFolder
     with pytest.raises(StepError, match="not what was planned"):
         folders.ensure(gen(tree=TREE_NEW))
     with pytest.raises(StepError, match="does not know where it came from"):
-        folders.ensure(Generation(app="x", generation=GEN_OLD))
+        folders.ensure(Generation(name="x", generation=GEN_OLD))
     assert not layout.generation_dir("x", GEN_OLD).exists()
 
 

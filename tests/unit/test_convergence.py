@@ -148,7 +148,7 @@ class World:
             self.store.fetch(KEY, URL)
             self.store.checkout(KEY, commit)
             gen = generations.Generation(
-                app=name, generation=generation_id(TREES[(name, commit)], how(name)),
+                name=name, generation=generation_id(TREES[(name, commit)], how(name)),
                 repository=KEY, commit=commit, path=name, tree=TREES[(name, commit)],
                 params=params, command=COMMAND if name == "z" else None,
                 service="lpam-app-z" if name == "z" else None)

@@ -54,5 +54,5 @@ def test_the_underlay_comes_from_the_context_the_caller_built(tmp_path: Path) ->
 
     ctx = context(tmp_path, MemoryServices())
     ctx.underlay = lambda: Path("/opt/ros/noetic/setup.bash")
-    gen = Generation(app="x", generation="g", launch="can_to_ros/vsl.launch")
+    gen = Generation(name="x", generation="g", launch="can_to_ros/vsl.launch")
     assert runtime(ctx, gen).ros_setup == Path("/opt/ros/noetic/setup.bash")

@@ -3,7 +3,6 @@ its metadata, the place where its scripts run), and the app the record shows ins
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 from reconciler.errors import StepError
@@ -11,7 +10,7 @@ from reconciler.execution.context import Context
 from reconciler.execution.supervision import runtime
 from reconciler.planning.model import Generation, app_folder
 from reconciler.unit import unit_name
-from schemas.generation import AppGeneration
+from schemas.generation import AppGeneration, GenerationFields
 from schemas.record import AppRecord
 
 
@@ -28,25 +27,21 @@ def staged(app: AppGeneration, step: str, ctx: Context) -> Generation:
     app, named after its folder)."""
     path = known(app.path, step, "path")
     service = unit_name(app_folder(path)) if app.scriptless else app.service
-    return Generation(
-        app=app.name, generation=app.generation, repository=app.repository,
-        commit=known(app.commit, step, "commit"), path=path,
-        tree=known(app.tree, step, "tree"), params=dict(app.params),
-        command=None if app.command is None else tuple(app.command), launch=app.launch,
-        service=service,
-        venv=str(ctx.dependencies().envs.location(tuple(app.pip))) if app.pip else None,
-        ros=dict(app.ros), ros_build=app.ros_build, ros_workspace=app.ros_workspace,
-        ros_user=app.ros_user,
-    )
+    venv = str(ctx.dependencies().envs.location(tuple(app.pip))) if app.pip else None
+    return Generation.model_validate({
+        **app.model_dump(exclude={"pip", "user"}), "commit": known(app.commit, step, "commit"),
+        "path": path, "tree": known(app.tree, step, "tree"), "service": service, "venv": venv})
+
+
+def _shared() -> set[str]:
+    """What a generation and the record's installed app both say: `GenerationFields` and
+    where it came from, without `user` (the record's alone: the metadata never kept it)."""
+    return {*GenerationFields.model_fields, "commit", "path", "tree"} - {"user"}
 
 
 def as_record(gen: Generation, user: str | None) -> AppRecord:
     """The generation as the installed app it becomes (status: installed)."""
-    return AppRecord(name=gen.app, repository=gen.repository, commit=gen.commit,
-                     tree=gen.tree, path=gen.path, params=gen.params,
-                     generation=gen.generation, service=gen.service,
-                     command=None if gen.command is None else list(gen.command),
-                     launch=gen.launch, user=user)
+    return AppRecord.model_validate({**gen.model_dump(include=_shared()), "user": user})
 
 
 def on_disk(ctx: Context, app: str, generation: str, fallback: Generation) -> Generation:
@@ -59,19 +54,16 @@ def with_runtime(ctx: Context, gen: Generation) -> Generation:
     """`gen` as a step wants it, with the runtime its staging recorded when the step does
     not say (a rollback's steps come from the state record, which keeps no environment or
     ROS build: the generation's metadata does, so it returns to the build that worked)."""
-    meta = ctx.app_folders().meta(gen.app, gen.generation)
+    meta = ctx.app_folders().meta(gen.name, gen.generation)
     if meta is None or gen.venv is not None or gen.ros_build is not None:
         return gen
-    return replace(gen, venv=meta.venv, ros=meta.ros, ros_build=meta.ros_build,
-                   ros_workspace=meta.ros_workspace, ros_user=meta.ros_user)
+    return gen.model_copy(update=meta.model_dump(
+        include={"venv", "ros", "ros_build", "ros_workspace", "ros_user"}))
 
 
 def of_record(ctx: Context, app: AppRecord) -> Generation:
     """The installed app's generation: its metadata, else what the record says."""
-    fallback = Generation(app=app.name, generation=app.generation, repository=app.repository,
-                          commit=app.commit, path=app.path, tree=app.tree, params=app.params,
-                          command=None if app.command is None else tuple(app.command),
-                          launch=app.launch, service=app.service)
+    fallback = Generation.model_validate(app.model_dump(include=_shared()))
     return on_disk(ctx, app.name, app.generation, fallback)
 
 
@@ -87,7 +79,7 @@ def run_script(ctx: Context, gen: Generation, script: str, params: dict[str, str
     """Run one script of `gen` in its place, in its runtime environment."""
     where = place(ctx, gen)
     required = gen.scripts is not None and script in gen.scripts
-    ctx.scripts.run(gen.app, where, script, {**params, **runtime(ctx, gen).environment},
+    ctx.scripts.run(gen.name, where, script, {**params, **runtime(ctx, gen).environment},
                     run=run, required=required)
 
 

@@ -49,7 +49,7 @@ def stage(step: StageStep, ctx: Context) -> None:
             ctx.services.check(unit_for(ctx, as_record(gen, step.app.user), folder,
                                         runtime(ctx, gen)))
         except ServiceError as exc:
-            raise StepError(f"{gen.app}: {exc.message}", hint=exc.hint) from None
+            raise StepError(f"{gen.name}: {exc.message}", hint=exc.hint) from None
 
 
 What = Literal["install", "start", "stop", "uninstall"]
@@ -118,16 +118,16 @@ def uninstall(step: UninstallStep, ctx: Context) -> None:
 def install(step: InstallStep, ctx: Context) -> None:
     gen = with_runtime(ctx, staged(step.app, step.id, ctx))
     current = ctx.record.app
-    redo = (current is not None and (current.name, current.generation) == (gen.app, gen.generation)
+    redo = (current is not None and (current.name, current.generation) == (gen.name, gen.generation)
             and current.status in ("installing", "uninstalling"))
     if (current is not None and not redo) or ctx.record.strays:
         other = current.name if current is not None else ctx.record.strays[0].name
         raise StepError(
-            f"refusing to install {gen.app}: {other} is still installed",
+            f"refusing to install {gen.name}: {other} is still installed",
             hint="only one app may own the vehicle's CAN hardware; run `lpam plan` again",
         )
-    if not ctx.layout.generation_dir(gen.app, gen.generation).is_dir():
-        raise StepError(f"{gen.app}: generation {gen.generation} was not staged")
+    if not ctx.layout.generation_dir(gen.name, gen.generation).is_dir():
+        raise StepError(f"{gen.name}: generation {gen.generation} was not staged")
     app = as_record(gen, step.app.user).model_copy(update={"good": step.good})
     ctx.app_folders().set_current(gen.folder)
     if gen.ros_build is not None and gen.ros_workspace is not None:
@@ -143,9 +143,9 @@ def adopt(step: AdoptStep, ctx: Context) -> None:
     unit ran), then its path leads to the generation staged from git (same files; LPAM's
     copy is moved aside, not deleted). No script runs: nothing that runs is touched."""
     gen = staged(step.app, step.id, ctx)
-    where = ctx.layout.generation_dir(gen.app, gen.generation)
+    where = ctx.layout.generation_dir(gen.name, gen.generation)
     if not where.is_dir():
-        raise StepError(f"{gen.app}: generation {gen.generation} was not staged")
+        raise StepError(f"{gen.name}: generation {gen.generation} was not staged")
     status: AppStatus = "running" if step.running else "installed"
     app = as_record(gen, step.app.user).model_copy(update={"status": status, "good": True})
     others = [s for s in ctx.record.strays if s.folder != step.folder]

@@ -44,12 +44,12 @@ def _script(ctx: Context, stray: Stray, what: Leaving) -> None:
             ctx.services.uninstall(stray.service)
     else:
         assert run is not None
-        fallback = Generation(app=stray.name, generation=stray.generation, params=stray.params)
+        fallback = Generation(name=stray.name, generation=stray.generation, params=stray.params)
         gen = on_disk(ctx, stray.name, stray.generation, fallback)
         run_script(ctx, gen, f"{what}.sh", stray.params, run)
         if what == "uninstall":
             ctx.app_folders().release(gen.folder,
-                           ctx.layout.generation_dir(gen.app, gen.generation))
+                           ctx.layout.generation_dir(gen.name, gen.generation))
     replace(None if what == "uninstall" else
             stray.model_copy(update={"stopped": True, "pending": None, "run": None}))
 
