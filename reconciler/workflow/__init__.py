@@ -3,9 +3,9 @@ service and the `libpanda-app-manager` shim later): each takes its ports and a r
 callback, and returns what happened. Every rule — the lock, the gates, holds, defaults —
 is here, never in a caller.
 
-plan: planning.plan_file / plan · apply: applying.apply_file / apply / apply_plan_file / apply_saved ·
-start|stop|restart: operate.operate_installed · rollback: operate.roll_back ·
-gates in force and now: gates · history: history · logs: logs · sync and agent: agent
-(one_pass, Agent), sync · bundle: packing, bundle · pin: pin · fleet: fleet ·
-import-lpam: importing · status: reconciler/status.py · defaults: defaults.
+plan: planning.plan_file / plan · apply: applying.apply_file / apply · a saved plan:
+applying.apply_plan_file / apply_saved · start|stop|restart: operate.operate_installed ·
+rollback: operate.roll_back · gates in force and now: gates · history: history · logs:
+logs · sync and agent: agent (one_pass, Agent), sync · bundle: packing, bundle · pin: pin ·
+fleet: fleet · import-lpam: importing · status: reconciler/status.py · defaults: defaults.
 """
