@@ -23,6 +23,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from bench.repos import CountingDaemon, build_repos, desired_state
 from bench.run import TIMEOUT, machine, sh
@@ -102,19 +103,24 @@ def main(argv: list[str] | None = None) -> int:
     for python, version in zip(pythons, versions):
         print(f"- Python {version}: {libraries_of(python)}")
     print()
-    first = pythons[0]
-    header = " | ".join(f"Python {v} median s (min) | ratio" for v in versions)
-    print(f"| command | {header} |")
-    print("|---|" + "---:|---:|" * len(pythons))
-    for label in [*commands, "python -c pass"]:
-        base = statistics.median(times[(label, first)])
-        cells = []
-        for python in pythons:
-            runs = times[(label, python)]
-            cells.append(f"{statistics.median(runs):.3f} ({min(runs):.3f}) | "
-                         f"{statistics.median(runs) / base:.2f}")
-        print(f"| {label} | {' | '.join(cells)} |")
+    print_ratios([f"Python {v}" for v in versions], pythons, [*commands, "python -c pass"],
+                 times)
     return 0
+
+
+def print_ratios(names: list[str], columns: list[Any], labels: list[str],
+                 times: dict[tuple[str, Any], list[float]]) -> None:
+    """A markdown table: per label, each column's median (min) and its ratio to the first
+    column's median in the same rounds."""
+    header = " | ".join(f"{n} median s (min) | ratio" for n in names)
+    print(f"| command | {header} |")
+    print("|---|" + "---:|---:|" * len(columns))
+    for label in labels:
+        base = statistics.median(times[(label, columns[0])])
+        cells = [f"{statistics.median(runs):.3f} ({min(runs):.3f}) | "
+                 f"{statistics.median(runs) / base:.2f}"
+                 for runs in (times[(label, column)] for column in columns)]
+        print(f"| {label} | {' | '.join(cells)} |")
 
 
 if __name__ == "__main__":

@@ -16,13 +16,13 @@ each figure is a ratio to this checkout's in the same rounds: these machines are
 from __future__ import annotations
 
 import argparse
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from bench.pythons import print_ratios
 from bench.repos import CountingDaemon, build_repos, desired_state
 from bench.run import TIMEOUT, machine, sh
 from tests.gitserver import git_env
@@ -105,19 +105,8 @@ def _report(folders: list[Path], times: dict[tuple[str, Path], list[float]],
     print(f"## Machine\n\n{machine()}\n\n{args.reps} counted rounds after one warm-up; "
           f"{args.repos} repositories pinned to commits; Python "
           f"{sys.version.split()[0]}.\n")
-    names = [commit_of(f) for f in folders]
-    header = " | ".join(f"{n} median s (min) | ratio" for n in names)
-    print(f"| command | {header} |")
-    print("|---|" + "---:|---:|" * len(folders))
-    for label in dict.fromkeys(label for label, _ in times):
-        base = statistics.median(times[(label, folders[0])])
-        cells = []
-        for folder in folders:
-            runs = times[(label, folder)]
-            cells.append(f"{statistics.median(runs):.3f} ({min(runs):.3f}) | "
-                         f"{statistics.median(runs) / base:.2f}")
-        print(f"| {label} | {' | '.join(cells)} |")
-
+    print_ratios([commit_of(f) for f in folders], list(folders),
+                 list(dict.fromkeys(label for label, _ in times)), times)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -302,25 +303,7 @@ def test_a_rollback_interrupted_by_ctrl_c_names_the_command_that_finishes_it(
     """Ctrl-C in a rollback's cutover: lpam says which command resumes it, and that command
     brings back the generation the rollback was returning to. (Another `lpam rollback`
     would go one generation further back: the field trial of issue 20 found lpam naming it.)"""
-    builder = make_repo("resume.git")
-    builder.write("libpanda-apps.yaml", "apps:\n  - name: alpha\n")
-    add_app(builder, "alpha", extra={"install": 'touch "$LPAM_ROOT/v1-installing"; sleep 1.5'})
-    builder.commit("alpha v1: installs slowly")
-    builder.push()
-    lpam.desired(desired(git_daemon.url("resume.git"), "alpha"))
-    assert lpam("apply", "--yes").returncode == 0
-    first = lpam.status()["app"]["generation"]
-    add_app(builder, "alpha")
-    builder.commit("alpha v2")
-    builder.push()
-    assert lpam("apply", "--yes").returncode == 0
-    marker = lpam.root / "v1-installing"
-    marker.unlink()
-    proc = lpam.spawn("rollback", "--yes")
-    deadline = time.monotonic() + 60
-    while not marker.exists() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert marker.exists()
+    first, proc = _rollback_reinstalling_v1(lpam, make_repo("resume.git"), git_daemon)
     os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C in the terminal
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130, err
@@ -340,26 +323,7 @@ def test_services_shutdown_without_supervisord_says_so(lpam: Lpam) -> None:
 def test_a_rollback_cut_off_by_a_kill_is_finished_by_the_next_apply(
     lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:
-    builder = make_repo("versions.git")
-    builder.write("libpanda-apps.yaml", "apps:\n  - name: alpha\n")
-    add_app(builder, "alpha", extra={"install": 'touch "$LPAM_ROOT/v1-installing"; sleep 1.5'})
-    builder.commit("alpha v1: installs slowly")
-    builder.push()
-    url = git_daemon.url("versions.git")
-    lpam.desired(desired(url, "alpha"))
-    assert lpam("apply", "--yes").returncode == 0
-    first = lpam.status()["app"]["generation"]
-    add_app(builder, "alpha")
-    builder.commit("alpha v2")
-    builder.push()
-    assert lpam("apply", "--yes").returncode == 0
-    marker = lpam.root / "v1-installing"
-    marker.unlink()
-    proc = lpam.spawn("rollback", "--yes")
-    deadline = time.monotonic() + 60
-    while not marker.exists() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert marker.exists()
+    first, proc = _rollback_reinstalling_v1(lpam, make_repo("versions.git"), git_daemon)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait(timeout=10)
     git_daemon.stop()  # finishing a rollback needs no network
@@ -372,3 +336,28 @@ def test_a_rollback_cut_off_by_a_kill_is_finished_by_the_next_apply(
     assert lpam.events()[-2:] == ["alpha:install:", "alpha:start:"]
     after = lpam("plan", "--offline", "--detailed-exitcode")
     assert after.returncode == 0, after.stdout
+
+
+def _rollback_reinstalling_v1(lpam: Lpam, builder: RepoBuilder,
+                              git_daemon: GitDaemon) -> tuple[str, subprocess.Popen[str]]:
+    """alpha v1 (whose install is slow) applied, then v2; `lpam rollback` spawned and
+    caught while it reinstalls v1. Returns v1's generation and the rollback's process."""
+    builder.write("libpanda-apps.yaml", "apps:\n  - name: alpha\n")
+    add_app(builder, "alpha", extra={"install": 'touch "$LPAM_ROOT/v1-installing"; sleep 1.5'})
+    builder.commit("alpha v1: installs slowly")
+    builder.push()
+    lpam.desired(desired(git_daemon.url(builder.bare.name), "alpha"))
+    assert lpam("apply", "--yes").returncode == 0
+    first: str = lpam.status()["app"]["generation"]
+    add_app(builder, "alpha")
+    builder.commit("alpha v2")
+    builder.push()
+    assert lpam("apply", "--yes").returncode == 0
+    marker = lpam.root / "v1-installing"
+    marker.unlink()
+    proc = lpam.spawn("rollback", "--yes")
+    deadline = time.monotonic() + 60
+    while not marker.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert marker.exists()
+    return first, proc
