@@ -34,7 +34,9 @@ from reconciler.privzone.messages import (
     AddRepository,
     AppEnable,
     AppParams,
+    AppRow,
     RemoveRepository,
+    app_info_message,
     parse_input,
 )
 
@@ -131,9 +133,12 @@ contents_values = st.recursive(
 
 
 @settings(max_examples=300, deadline=None)
-@given(value=contents_values, ascii_only=st.booleans())
+@given(value=contents_values, padding=st.integers(min_value=0, max_value=1100),
+       ascii_only=st.booleans())
 def test_every_notification_decodes_alone_and_the_message_round_trips(
-        value: object, ascii_only: bool) -> None:
+        value: object, padding: int, ascii_only: bool) -> None:
+    """The padding moves the generated text across the notification edges."""
+    value = ["p" * padding, value]
     notifications = encode_message("app_info", value, ascii_only=ascii_only)
     text = ""
     for index, notification in enumerate(notifications):
@@ -178,6 +183,20 @@ def test_the_phone_reads_exactly_the_contents_lpam_sends(ascii_only: bool) -> No
         assert got["type"] == "app_info"
         assert got["contents"] == json.dumps(value, ensure_ascii=ascii_only)
         assert got["parsed"] == value
+
+
+@needs_node
+def test_the_phone_shows_the_app_list_lpam_sends() -> None:
+    rows = [AppRow(f"o/r{i}", "main", f"app{i}", "can", i == 0, i == 1, f"{CJK} {EMOJI} " * i)
+            for i in range(12)]
+    (got,) = phone_receives(app_info_message(rows))
+    assert got["type"] == "app_info"
+    assert got["parsed"][0] == {"repository": "o/r0", "branch": "main", "app": "app0",
+                                "service": "can", "enabled": "yes", "running": "no",
+                                "description": ""}
+    assert [row["description"] for row in got["parsed"]] == [f"{CJK} {EMOJI} " * i
+                                                             for i in range(12)]
+    assert [row["running"] for row in got["parsed"]] == ["no", "yes"] + ["no"] * 10
 
 
 @needs_node
@@ -352,7 +371,8 @@ def test_a_nul_ending_the_last_chunk_ends_the_message_as_in_bluezone() -> None:
 
 @settings(max_examples=200, deadline=None)
 @given(data=st.data(),
-       text=st.text(st.characters(exclude_characters="\x00"), min_size=1, max_size=2000),
+       text=st.text(st.characters(codec="utf-8", exclude_characters="\x00"), min_size=1,
+                    max_size=2000),
        cuts=st.lists(st.integers(min_value=0, max_value=10_000), max_size=20))
 def test_any_cut_of_two_interleaved_messages_is_put_together(
         data: st.DataObject, text: str, cuts: list[int]) -> None:
