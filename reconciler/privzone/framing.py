@@ -77,17 +77,21 @@ def split_utf8(data: bytes, limit: int = NOTIFICATION_LIMIT) -> list[bytes]:
     return pieces
 
 
-def encode_message(kind: str, contents: object, *, ascii_only: bool = True) -> list[bytes]:
+def encode_message(kind: str, contents: object, *, ascii_only: bool = True,
+                   limit: int = NOTIFICATION_LIMIT) -> list[bytes]:
     """The notifications that carry `contents` to the phone as a message of type `kind`.
 
     `contents` is anything `json.dumps` takes (NaN and infinities are refused: JSON.parse
     would reject the message). The body keeps bluezone's key order and `json.dumps`'
     default separators; the module docstring says why it is ASCII and where it is cut.
+    `limit` is bluezone's 500 unless the link is known to carry less (a notification is
+    at most the ATT MTU less 3 bytes, and this one grows by the final NUL): the phone
+    needs no particular size, only whole characters and the NUL at the end.
     """
     text = json.dumps(contents, ensure_ascii=ascii_only, allow_nan=False)
     body = json.dumps({"type": kind, "contents": text, "length": utf16_length(text)},
                       ensure_ascii=ascii_only)
-    pieces = split_utf8(body.encode("utf-8"))
+    pieces = split_utf8(body.encode("utf-8"), limit)
     pieces[-1] += END
     return pieces
 

@@ -220,7 +220,7 @@ def _json(text: str, failure: str) -> object:
         raise ProtocolError(f"{failure}: {error.msg} at character {error.pos}") from None
     except RecursionError:
         raise ProtocolError(f"{failure}: nested too deeply") from None
-    except ValueError as error:  # e.g. an integer longer than Python reads (3.11+)
+    except ValueError as error:  # e.g. an integer past int_max_str_digits
         raise ProtocolError(f"{failure}: {shorten(str(error), SHOWN)}") from None
 
 

@@ -134,21 +134,21 @@ contents_values = st.recursive(
 
 @settings(max_examples=300, deadline=None)
 @given(value=contents_values, padding=st.integers(min_value=0, max_value=1100),
-       ascii_only=st.booleans())
+       ascii_only=st.booleans(), limit=st.sampled_from([NOTIFICATION_LIMIT, 4, 5, 6, 7, 20]))
 def test_every_notification_decodes_alone_and_the_message_round_trips(
-        value: object, padding: int, ascii_only: bool) -> None:
+        value: object, padding: int, ascii_only: bool, limit: int) -> None:
     """The padding moves the generated text across the notification edges."""
     value = ["p" * padding, value]
-    notifications = encode_message("app_info", value, ascii_only=ascii_only)
+    notifications = encode_message("app_info", value, ascii_only=ascii_only, limit=limit)
     text = ""
     for index, notification in enumerate(notifications):
         last = index == len(notifications) - 1
         assert notification.endswith(b"\x00") == last
         payload = notification[:-1] if last else notification
         assert b"\x00" not in payload
-        assert len(payload) <= NOTIFICATION_LIMIT
+        assert len(payload) <= limit
         piece = payload.decode("utf-8")  # strict: a split character would raise here
-        assert utf16_length(piece) <= NOTIFICATION_LIMIT
+        assert utf16_length(piece) <= limit
         text += piece
     message = json.loads(text)
     assert message["length"] == utf16_length(message["contents"])
@@ -169,11 +169,13 @@ def edge_cases() -> Iterator[object]:
 
 
 @needs_node
+@pytest.mark.parametrize("limit", [NOTIFICATION_LIMIT, 23])
 @pytest.mark.parametrize("ascii_only", [True, False], ids=["ascii", "utf-8"])
-def test_the_phone_reads_exactly_the_contents_lpam_sends(ascii_only: bool) -> None:
+def test_the_phone_reads_exactly_the_contents_lpam_sends(ascii_only: bool, limit: int) -> None:
     values = list(edge_cases())
-    messages = [encode_message("app_info", value, ascii_only=ascii_only) for value in values]
-    if not ascii_only:  # the cases do put a character across the 500th byte
+    messages = [encode_message("app_info", value, ascii_only=ascii_only, limit=limit)
+                for value in values]
+    if not ascii_only and limit == NOTIFICATION_LIMIT:  # a character across the 500th byte
         assert any(body_of(m)[NOTIFICATION_LIMIT] & 0xC0 == 0x80 for m in messages
                    if len(body_of(m)) > NOTIFICATION_LIMIT)
     received = phone_receives([n for message in messages for n in message])
@@ -362,6 +364,7 @@ def test_writes_without_a_device_share_a_buffer_of_their_own() -> None:
 
 
 def test_a_nul_ending_the_last_chunk_ends_the_message_as_in_bluezone() -> None:
+    """And a NUL inside a write stays in the body, where parsing refuses it."""
     inbox = Inbox()
     assert inbox.feed(DEVICE, b"") is None
     assert inbox.feed(DEVICE, b"abc\x00") == Delivery(DEVICE, b"abc")

@@ -190,6 +190,15 @@ def test_parameters_follow_the_desired_states_rules(params: dict[str, str], faul
     assert text.startswith("Error setting app parameters: params: ") and fault in text
 
 
+@pytest.mark.parametrize("body", [
+    b'{"type": "app_update",\x00 "length": 2, "contents": "{}"}',  # a NUL from a bad write
+    b'{"type": "app_update", "length": 1' + b"0" * 5000 + b', "contents": "{}"}',
+])
+def test_what_a_phone_never_sends_is_refused_as_a_format_or_length_fault(body: bytes) -> None:
+    assert refusal(body).startswith(("File format error! Not JSON: ",
+                                     "Upload issue, length mismatch!"))  # no digit limit
+
+
 def test_a_value_echoed_to_the_phone_is_short_and_printable() -> None:
     text = refusal(phone("x\x1b[2J" * 300, {}))
     assert text.startswith("Unregognized type: x?[2Jx?[2J") and "characters left out" in text
