@@ -219,13 +219,6 @@ def test_the_phone_drops_a_message_cut_inside_a_character() -> None:
 
 # --- phone -> Pi ------------------------------------------------------------------------
 
-def deliver(inbox: Inbox, device: str | None, writes: Sequence[bytes]) -> Delivery:
-    outcomes = [inbox.feed(device, write) for write in writes]
-    assert outcomes[:-1] == [None] * (len(writes) - 1)
-    assert isinstance(outcomes[-1], Delivery)
-    return outcomes[-1]
-
-
 @needs_node
 def test_lpam_reads_what_the_phone_writes_in_500_character_slices() -> None:
     long_value = "v" * 495 + CJK * 200 + "é" * 300  # multi-byte characters on slice edges
