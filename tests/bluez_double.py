@@ -89,6 +89,13 @@ class BluezDouble:
         await asyncio.sleep(0.1)  # a real restart takes a moment
         await self.start()
 
+    async def release_advertisement(self) -> None:
+        """Drop the advertisement as bluetoothd does when the adapter is powered off."""
+        assert self.bus is not None and self.advertisement is not None
+        held, self.advertisement = self.advertisement, None
+        await _ok(self.bus, Message(destination=held.sender, path=held.path,
+                                    interface=ADVERTISEMENT, member="Release"))
+
     async def registered(self, timeout: float = WAIT) -> None:
         """Wait until both the application and the advertisement are registered."""
         await until(lambda: self.app is not None and self.advertisement is not None

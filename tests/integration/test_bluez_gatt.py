@@ -12,11 +12,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
+from dbus_fast import BusType, Message, MessageType, Variant
+from dbus_fast.aio import MessageBus
 
 from reconciler.adapters.bluez import Characteristic, GattServer
 from tests.bluez_double import BluezDouble, PhoneError, until
@@ -52,9 +55,11 @@ class Recorder:
         self.writes: list[tuple[Characteristic, bytes, str | None]] = []
         self.subscriptions: list[tuple[Characteristic, bool]] = []
         self.fail_writes = False
+        self.read_time = 0.0  # seconds a read blocks the loop
 
     def read(self, char: Characteristic, device: str | None) -> bytes:
         self.reads.append((char, device))
+        time.sleep(self.read_time)
         return f"{char.name} for {device}".encode()
 
     def write(self, char: Characteristic, value: bytes, device: str | None) -> None:
@@ -263,5 +268,79 @@ def test_a_missing_adapter_is_reported_and_retried(bus: str) -> None:
             assert [ln for ln in lines if "hci0" in ln] == [
                 "cannot register the GATT application on /org/bluez/hci0: bluetoothd has "
                 "no adapter /org/bluez/hci0 (is the controller up?); retrying"]
+
+    scenario(body)
+
+
+def test_only_bluetoothd_may_pose_as_a_phone(bus: str) -> None:
+    """A write can make lpam change the car's apps: another process on the system bus
+    calling the characteristic directly is refused and lpam hears nothing of it."""
+    handler = Recorder()
+
+    async def body() -> None:
+        async with bluetoothd(bus) as double, serving(GattServer(handler, bus_address=bus)):
+            await double.registered()
+            assert double.app is not None
+            stranger = await MessageBus(bus_address=bus, bus_type=BusType.SYSTEM).connect()
+            try:
+                reply = await stranger.call(Message(
+                    destination=double.app.sender, path=double.path_of(INPUT),
+                    interface="org.bluez.GattCharacteristic1", member="WriteValue",
+                    signature="aya{sv}", body=[b'{"type": "app_enable"}',
+                                               {"device": Variant("o", PHONE_A)}]))
+            finally:
+                stranger.disconnect()
+            assert reply is not None and reply.message_type is MessageType.ERROR
+            assert reply.error_name == "org.freedesktop.DBus.Error.AccessDenied"
+            await double.write(INPUT, b"{}", PHONE_B)
+        assert handler.writes == [(Characteristic.INPUT, b"{}", PHONE_B)]
+
+    scenario(body)
+
+
+def test_an_advertisement_bluetoothd_released_is_registered_again(bus: str) -> None:
+    async def body() -> None:
+        async with bluetoothd(bus) as double, serving(GattServer(Recorder(), bus_address=bus)):
+            await double.registered()
+            await double.release_advertisement()
+            await double.registered(timeout=3)
+            assert [e for e, _ in double.events] == [
+                "RegisterApplication", "RegisterAdvertisement", "RegisterAdvertisement"]
+
+    scenario(body)
+
+
+def test_survives_the_system_bus_restarting(tmp_path: Path) -> None:
+    """A bus, then none, then a new one on the same socket: lpam is registered with the
+    bluetoothd of each bus in turn."""
+    lines: list[str] = []
+    address = f"unix:path={tmp_path / 'bus.sock'}"
+
+    async def body() -> None:
+        async with serving(GattServer(Recorder(), bus_address=address, log=lines.append)):
+            for _ in range(2):
+                with private_bus(tmp_path):
+                    async with bluetoothd(address) as double:
+                        await double.registered(timeout=5)
+                await until(lambda: lines[-1].startswith("the system bus connection was "
+                                                         "lost"), 5)
+
+    scenario(body)
+
+
+def test_a_handler_that_holds_the_loop_is_reported(bus: str) -> None:
+    """While a handler runs no other phone is served: the journal says which one lingered."""
+    handler = Recorder()
+    lines: list[str] = []
+
+    async def body() -> None:
+        async with bluetoothd(bus) as double, serving(
+                GattServer(handler, bus_address=bus, log=lines.append)):
+            await double.registered()
+            await double.read(CONFIG, PHONE_A)
+            handler.read_time = 0.2
+            await double.read(CONFIG, PHONE_A)
+        held = [ln for ln in lines if "held the bus" in ln]
+        assert len(held) == 1 and held[0].startswith("the config read held the bus for 0.2")
 
     scenario(body)

@@ -37,6 +37,7 @@ from reconciler.adapters.bluez.tree import (
 
 SLOW_HANDLER = 0.1  # seconds a handler may hold the loop before it is reported
 
+ACCESS_DENIED = "org.freedesktop.DBus.Error.AccessDenied"
 INVALID_ARGS = "org.freedesktop.DBus.Error.InvalidArgs"
 UNKNOWN_METHOD = "org.freedesktop.DBus.Error.UnknownMethod"
 FAILED = "org.bluez.Error.Failed"
@@ -68,13 +69,19 @@ class Objects:
         self._released = released
         self.notifying: set[Characteristic] = set()
 
-    def answer(self, msg: Message) -> Message | None:
+    def answer(self, msg: Message, bluez: str | None) -> Message | None:
         """The reply to `msg` if it is a call on one of lpam's objects, else None (the
-        message is someone else's: a reply to lpam's own calls, a signal)."""
+        message is someone else's: a reply to lpam's own calls, a signal).
+
+        Only bluetoothd (`bluez`, the unique name owning org.bluez) is answered: a write
+        here can make lpam change the car's apps, so no other process on the system bus
+        may pose as a phone, whatever the bus's policy allows."""
         if msg.message_type is not MessageType.METHOD_CALL:
             return None
         if msg.path != ROOT and msg.path not in NODES:
             return None
+        if bluez is None or msg.sender != bluez:
+            return Message.new_error(msg, ACCESS_DENIED, "only bluetoothd is served")
         try:
             return self._dispatch(msg)
         except _Refused as refused:

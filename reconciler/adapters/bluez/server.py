@@ -62,6 +62,7 @@ class GattServer:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
         self._registered: set[str] = set()
+        self._bluez: str | None = None  # bluetoothd's unique name: the only caller served
         self._problem = ""  # the last reason logged, so a retry loop logs it once
 
     async def run(self, stop: asyncio.Event) -> None:
@@ -122,6 +123,10 @@ class GattServer:
         bus.add_message_handler(self._on_message)
         await _first(stop, bus.call(_daemon_call("AddMatch", "s", [OWNER_RULE])),
                      CALL_TIMEOUT)
+        owner = await _first(stop, bus.call(_daemon_call("GetNameOwner", "s", [BLUEZ])),
+                             CALL_TIMEOUT)
+        self._bluez = (str(owner.body[0]) if owner is not None
+                       and owner.message_type is MessageType.METHOD_RETURN else None)
         gone = asyncio.ensure_future(bus.wait_for_disconnect())  # type: ignore[no-untyped-call]
         gone.add_done_callback(_consume)
         delay = _Backoff()
@@ -182,12 +187,13 @@ class GattServer:
     def _on_message(self, msg: Message) -> Message | None:
         if (msg.message_type is MessageType.SIGNAL and msg.member == "NameOwnerChanged"
                 and msg.sender == DBUS and msg.body and msg.body[0] == BLUEZ):
-            self._bluez_moved(bool(msg.body[1]), bool(msg.body[2]))
+            self._bluez_moved(str(msg.body[1]), str(msg.body[2]))
             return None  # dbus-fast follows name owners too: let it see the signal
-        return self._objects.answer(msg)
+        return self._objects.answer(msg, self._bluez)
 
-    def _bluez_moved(self, left: bool, arrived: bool) -> None:
+    def _bluez_moved(self, left: str, arrived: str) -> None:
         """A new bluetoothd knows nothing of lpam: everything is registered again."""
+        self._bluez = arrived or None
         if left:
             self._log("bluetoothd left the system bus")
             self._objects.forget()
