@@ -103,10 +103,19 @@ async def bluetoothd(address: str, **kwargs: Any) -> AsyncIterator[BluezDouble]:
         await double.stop()
 
 
+@contextlib.asynccontextmanager
+async def served(bus: str, handler: Recorder | None = None,
+                 log: Callable[[str], None] = print) -> AsyncIterator[BluezDouble]:
+    """bluetoothd on `bus` with lpam's server registered: the double, acting as phones."""
+    server = GattServer(handler or Recorder(), bus_address=bus, log=log)
+    async with bluetoothd(bus) as double, serving(server):
+        await double.registered()
+        yield double
+
+
 def test_registers_the_service_and_advertisement_privzone_looks_for(bus: str) -> None:
     async def body() -> None:
-        async with bluetoothd(bus) as double, serving(GattServer(Recorder(), bus_address=bus)):
-            await double.registered()
+        async with served(bus) as double:
             assert double.app is not None and double.advertisement is not None
             objects = double.app.objects
             services = [p["org.bluez.GattService1"] for p in objects.values()
@@ -136,8 +145,7 @@ def test_each_phones_reads_and_writes_reach_lpam_with_its_device(bus: str) -> No
     handler = Recorder()
 
     async def body() -> None:
-        async with bluetoothd(bus) as double, serving(GattServer(handler, bus_address=bus)):
-            await double.registered()
+        async with served(bus, handler) as double:
             await double.write(INPUT, b'{"type": "app_update"', PHONE_A)
             await double.write(COMMAND, b"A", PHONE_B)
             assert await double.read(CONFIG, PHONE_A) == f"CONFIG for {PHONE_A}".encode()
@@ -196,9 +204,7 @@ def test_registers_again_when_bluetoothd_restarts(bus: str) -> None:
     lines: list[str] = []
 
     async def body() -> None:
-        async with bluetoothd(bus) as double, serving(
-                GattServer(handler, bus_address=bus, log=lines.append)):
-            await double.registered()
+        async with served(bus, handler, lines.append) as double:
             await double.start_notify(STATUS)
             first = double.app
             await double.restart()
@@ -278,8 +284,7 @@ def test_only_bluetoothd_may_pose_as_a_phone(bus: str) -> None:
     handler = Recorder()
 
     async def body() -> None:
-        async with bluetoothd(bus) as double, serving(GattServer(handler, bus_address=bus)):
-            await double.registered()
+        async with served(bus, handler) as double:
             assert double.app is not None
             stranger = await MessageBus(bus_address=bus, bus_type=BusType.SYSTEM).connect()
             try:
@@ -300,8 +305,7 @@ def test_only_bluetoothd_may_pose_as_a_phone(bus: str) -> None:
 
 def test_an_advertisement_bluetoothd_released_is_registered_again(bus: str) -> None:
     async def body() -> None:
-        async with bluetoothd(bus) as double, serving(GattServer(Recorder(), bus_address=bus)):
-            await double.registered()
+        async with served(bus) as double:
             await double.release_advertisement()
             await double.registered(timeout=3)
             assert [e for e, _ in double.events] == [
@@ -334,9 +338,7 @@ def test_a_handler_that_holds_the_loop_is_reported(bus: str) -> None:
     lines: list[str] = []
 
     async def body() -> None:
-        async with bluetoothd(bus) as double, serving(
-                GattServer(handler, bus_address=bus, log=lines.append)):
-            await double.registered()
+        async with served(bus, handler, lines.append) as double:
             await double.read(CONFIG, PHONE_A)
             handler.read_time = 0.2
             await double.read(CONFIG, PHONE_A)
