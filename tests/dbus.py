@@ -1,10 +1,10 @@
 """A private, real dbus-daemon for tests: the system bus's stand-in, in the test's tmp dir.
 
 lpam's Bluetooth service talks to BlueZ over the system D-Bus. Tests run the reference
-daemon (`dbus-daemon`, Debian package `dbus`) on a unix socket inside their own directory
-with a permissive policy (any name owned, any message sent), so nothing touches this
-machine's system bus and no root is needed. `private_bus` yields the bus's address and
-stops the daemon by its pid when the block ends.
+daemon (`dbus-daemon`: Debian package `dbus-daemon` since bookworm, `dbus` before) on a
+unix socket inside their own directory with a permissive policy (any name owned, any
+message sent), so nothing touches this machine's system bus and no root is needed.
+`private_bus` yields the bus's address and stops the daemon by its pid when the block ends.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ SUN_PATH_MAX = 107  # a unix socket's path must fit sockaddr_un.sun_path
 
 needs_dbus_daemon = pytest.mark.skipif(
     DBUS_DAEMON is None,
-    reason="dbus-daemon is not installed (Debian package `dbus`): the Bluetooth tests need "
-           "a real private bus")
+    reason="dbus-daemon is not installed (Debian package `dbus-daemon`, `dbus` before "
+           "bookworm): the Bluetooth tests need a real private bus")
 
 CONFIG = """<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-Bus Bus Configuration 1.0//EN"
  "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
@@ -49,7 +49,7 @@ CONFIG = """<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-Bus Bus Configurat
 def private_bus(directory: Path) -> Iterator[str]:
     """Run a dbus-daemon listening in `directory`; yield its address."""
     if DBUS_DAEMON is None:
-        pytest.skip("dbus-daemon is not installed (Debian package `dbus`)")
+        pytest.skip("dbus-daemon is not installed (Debian package `dbus-daemon`)")
     socket = directory / "bus.sock"
     if len(str(socket)) > SUN_PATH_MAX:
         raise ValueError(f"{socket} is too long for a unix socket")

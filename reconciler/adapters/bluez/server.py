@@ -177,8 +177,8 @@ class GattServer:
             else:
                 call = self._adapter_call(ADVERTISING_MANAGER, "UnregisterAdvertisement",
                                           ADVERTISEMENT, options=False)
-            if bus.connected:  # bluetoothd gone or hung: nothing to undo, no wait
-                await _call(bus, call, asyncio.Event(), LEAVE_TIMEOUT)
+            if bus.connected and self._bluez is not None:  # else gone with the bus or it
+                await _call(bus, call, asyncio.Event(), LEAVE_TIMEOUT)  # errors ignored
         self._registered.clear()
         self._objects.forget()
         bus.remove_message_handler(self._on_message)
