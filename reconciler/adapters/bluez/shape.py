@@ -1,22 +1,26 @@
 """The GATT tree and the advertisement Privzone expects, as data.
 
-Privzone (the field's phone app, Web Bluetooth) finds the car by the advertised local name
-`CIRCLES` and then looks characteristics up by UUID, so these values are a wire contract
-with phones already in the field: they are libpanda's `scripts/bluezone/bluezone.py`
-(`CirclesService`, its characteristics and descriptors, `CirclesAdvertisement`) written
-down as values, in bluezone's order (the order BlueZ lists them in, `char0` … `char6`).
-Nothing here touches the bus; `server.py` exports it.
+Privzone (the field's phone app, Web Bluetooth) asks for a device advertising SERVICE_UUID
+(`requestDevice({filters: [{services: [...]}]})` in its MapPage.js; the chooser shows the
+name `CIRCLES`), then looks characteristics up by UUID and lists (never reads) the
+descriptors of two of them, so these values are a wire contract with phones in the field:
+they are libpanda's `scripts/bluezone/bluezone.py` (`CirclesService`, its characteristics
+and descriptors, `CirclesAdvertisement`) written down as values, in bluezone's order (the
+order BlueZ lists them in, `char0` … `char6`). Nothing here touches the bus; tree.py
+and server.py export it.
 
 Two of bluezone's choices are kept on purpose although they look odd:
 
 - The descriptors carry 16-bit UUIDs of standard descriptor types (`2904` is the
-  Characteristic Presentation Format, …) whose value is a text label; the phone never
-  reads them, so they are kept as they were rather than "fixed" into something untested.
+  Characteristic Presentation Format, …) whose value is a text label; the phone only lists
+  them, so they are kept as they were rather than "fixed" into something untested.
 - The advertisement's type is `broadcast`, not `peripheral` (bluezone has the latter
-  commented out). A peripheral advertisement adds the 3-byte Flags field; with the 128-bit
-  service UUID (18 bytes), the name (9) and the TX power (3) that would pass the 31 bytes
-  of a legacy advertisement, which is the likely reason. Phones in the field connect to
-  bluezone's advertisement, so it is copied as it is.
+  commented out), and it asks for `IncludeTxPower`, a property BlueZ since 5.4x ignores
+  (it reads `Includes: ["tx-power"]`). BlueZ makes a broadcast advertisement
+  non-connectable, so phones in the field reach the car because its adapter is otherwise
+  connectable (discoverable, as bluezone's install.sh sets it up); that is what works
+  today, so it is kept, and ADVERTISEMENT_TYPE is the one value to change if a car's
+  phones see CIRCLES but cannot connect.
 """
 
 from __future__ import annotations
