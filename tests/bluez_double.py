@@ -3,8 +3,9 @@
 It owns `org.bluez` and exports the adapter object (`/org/bluez/hci0`) with the two
 managers lpam registers with, doing what BlueZ does (doc/org.bluez.GattManager.rst,
 org.bluez.LEAdvertisingManager.rst): `RegisterApplication` reads the caller's tree with
-`GetManagedObjects` before it answers; `RegisterAdvertisement` reads the advertisement's
-properties with `GetAll`; a second registration of the same object is `AlreadyExists`;
+`GetManagedObjects` before it answers, and refuses one its GATT database would not take
+(`tree_fault`); `RegisterAdvertisement` reads the advertisement's properties with
+`GetAll`; a second registration of the same object is `AlreadyExists`;
 `UnregisterAdvertisement` calls the advertisement's `Release`. It then acts as a phone the
 way bluetoothd relays one: `ReadValue`/`WriteValue` with the phone's device path in the
 options, `StartNotify`, and the `PropertiesChanged` notifications collected per
@@ -15,6 +16,7 @@ that has forgotten every registration, as `systemctl restart bluetooth` would.
 from __future__ import annotations
 
 import asyncio
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,6 +30,15 @@ ADVERTISING_MANAGER = "org.bluez.LEAdvertisingManager1"
 CHARACTERISTIC = "org.bluez.GattCharacteristic1"
 DESCRIPTOR = "org.bluez.GattDescriptor1"
 ADVERTISEMENT = "org.bluez.LEAdvertisement1"
+SERVICE = "org.bluez.GattService1"
+# the flags bluetoothd's gatt-database.c parses (doc/org.bluez.GattCharacteristic.rst)
+CHAR_FLAGS = {"broadcast", "read", "write-without-response", "write", "notify", "indicate",
+              "authenticated-signed-writes", "extended-properties", "reliable-write",
+              "writable-auxiliaries", "encrypt-read", "encrypt-write",
+              "encrypt-authenticated-read", "encrypt-authenticated-write",
+              "secure-read", "secure-write", "authorize"}
+DESC_FLAGS = {"read", "write", "encrypt-read", "encrypt-write", "encrypt-authenticated-read",
+              "encrypt-authenticated-write", "secure-read", "secure-write", "authorize"}
 PROPERTIES = "org.freedesktop.DBus.Properties"
 NOTIFICATIONS = f"type='signal',interface='{PROPERTIES}',member='PropertiesChanged'"
 WAIT = 10.0  # the longest any helper waits for an answer
@@ -208,7 +219,11 @@ class BluezDouble:
         answer = await asyncio.wait_for(self.bus.call(ask), WAIT)
         if answer is None or answer.message_type is MessageType.ERROR:
             return Message.new_error(msg, "org.bluez.Error.Failed", "no objects")
-        self.app = Registration(str(msg.sender), msg.body[0], plain(answer.body[0]))
+        objects = plain(answer.body[0])
+        fault = tree_fault(objects)
+        if fault is not None:  # bluetoothd logs the reason and fails the registration
+            return Message.new_error(msg, "org.bluez.Error.Failed", fault)
+        self.app = Registration(str(msg.sender), msg.body[0], objects)
         return Message.new_method_return(msg)
 
     async def _register_advertisement(self, msg: Message) -> Message:
@@ -239,6 +254,35 @@ class BluezDouble:
         props = self.app.objects.get(str(msg.path), {}).get(CHARACTERISTIC)
         if value is not None and props is not None:
             self.notifications.setdefault(props["UUID"], []).append(bytes(value.value))
+
+
+def tree_fault(objects: dict[str, dict[str, dict[str, Any]]]) -> str | None:
+    """What bluetoothd's gatt-database would refuse in an application's objects: a
+    characteristic of an unknown service, a descriptor of an unknown characteristic, a
+    flag it does not know, a UUID it cannot parse; None when it would accept them."""
+    def of(interface: str) -> dict[str, dict[str, Any]]:
+        return {p: i[interface] for p, i in objects.items() if interface in i}
+
+    services, chars = of(SERVICE), of(CHARACTERISTIC)
+    if not services:
+        return "no service"
+    for path, props in services.items():
+        if not _uuid(props.get("UUID")) or not isinstance(props.get("Primary"), bool):
+            return f"{path}: bad service"
+    for owner, kind, parent, flags in ((services, CHARACTERISTIC, "Service", CHAR_FLAGS),
+                                       (chars, DESCRIPTOR, "Characteristic", DESC_FLAGS)):
+        for path, props in of(kind).items():
+            if props.get(parent) not in owner or not _uuid(props.get("UUID")):
+                return f"{path}: no {parent} or bad UUID"
+            if not props.get("Flags") or not set(props["Flags"]) <= flags:
+                return f"{path}: bad flags {props.get('Flags')}"
+    return None
+
+
+def _uuid(value: Any) -> bool:
+    text = str(value)
+    return bool(re.fullmatch(r"[0-9a-fA-F]{4}|[0-9a-fA-F]{8}(-[0-9a-fA-F]{4}){3}-"
+                             r"[0-9a-fA-F]{12}", text))
 
 
 def _daemon(member: str, signature: str, body: list[Any]) -> Message:
