@@ -23,6 +23,7 @@ from dbus_fast import Message, MessageType, Variant
 
 from reconciler.adapters.bluez.shape import Characteristic
 from reconciler.adapters.bluez.tree import (
+    ADVERTISEMENT,
     ADVERTISEMENT_IFACE,
     CHARACTERISTIC_IFACE,
     DESCRIPTOR_IFACE,
@@ -116,14 +117,14 @@ class Objects:
             if value is None:
                 raise _Refused(INVALID_ARGS, f"no property {msg.body[1]}")
             return Message.new_method_return(msg, "v", [value])
-        if member == (ADVERTISEMENT_IFACE, "Release", ""):
+        if member == (ADVERTISEMENT_IFACE, "Release", "") and msg.path == ADVERTISEMENT:
             self._log("bluetoothd released the advertisement")
             self._released()
             return Message.new_method_return(msg)
         node = NODES.get(msg.path or "")
-        char = node.characteristic if node is not None else None
-        if char is not None and node is not None and node.interface == msg.interface:
-            return self._gatt(msg, char)
+        if node is not None and node.characteristic is not None \
+                and node.interface == msg.interface:
+            return self._gatt(msg, node.characteristic)
         raise _Refused(UNKNOWN_METHOD, f"{msg.interface}.{msg.member}({msg.signature}) "
                                        f"is not on {msg.path}")
 
