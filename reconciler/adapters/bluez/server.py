@@ -1,0 +1,312 @@
+"""lpam's GATT server on the system D-Bus: registered with BlueZ and kept registered.
+
+Where it stands: the Privzone glue builds a `GattServer` with its `GattHandler` and runs it
+beside lpam's workflow; this module owns the bus connection, the registration of the GATT
+application (`GattManager1.RegisterApplication`) and of the advertisement
+(`LEAdvertisingManager1.RegisterAdvertisement`) on the adapter, and their lifetime:
+
+- bluetoothd absent, the adapter missing, the bus down: one log line per new reason, then
+  retries with a back-off that doubles from FIRST_DELAY to MAX_DELAY;
+- bluetoothd restarted (the `org.bluez` name leaves and returns, seen by NameOwnerChanged):
+  a new bluetoothd knows nothing, so both are registered again at once;
+- stop: both unregistered (errors ignored: bluetoothd may be gone), then the bus closed.
+
+It uses dbus-fast's low-level API (a message handler answering calls, `Message`), which
+is the same on dbus-fast 2.x (the cars' Python 3.9) and 5.x.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import Awaitable, Callable
+from typing import Any, TypeVar
+
+from dbus_fast import BusType, Message, MessageType
+from dbus_fast.aio import MessageBus
+
+from reconciler.adapters.bluez.objects import GattHandler, Objects
+from reconciler.adapters.bluez.shape import Characteristic
+from reconciler.adapters.bluez.tree import ADVERTISEMENT, ROOT
+
+BLUEZ = "org.bluez"
+GATT_MANAGER = "org.bluez.GattManager1"
+ADVERTISING_MANAGER = "org.bluez.LEAdvertisingManager1"
+DBUS = "org.freedesktop.DBus"
+OWNER_RULE = (f"type='signal',sender='{DBUS}',interface='{DBUS}',"
+              f"member='NameOwnerChanged',arg0='{BLUEZ}'")
+
+FIRST_DELAY = 0.5
+MAX_DELAY = 10.0
+# bluetoothd answers RegisterApplication only after it has read the whole tree back
+CALL_TIMEOUT = 15.0
+LEAVE_TIMEOUT = 2.0  # per Unregister* call on stop: bluetoothd may be hung or gone
+
+APPLICATION = "GATT application"
+ADVERTISING = "advertisement"
+
+T = TypeVar("T")
+
+
+class GattServer:
+    """Privzone's service over BlueZ; `run` serves until its `stop` event is set."""
+
+    def __init__(self, handler: GattHandler, *, bus_address: str | None = None,
+                 adapter: str = "/org/bluez/hci0",
+                 log: Callable[[str], None] = print) -> None:
+        self._address = bus_address  # None: dbus-fast reads DBUS_SYSTEM_BUS_ADDRESS
+        self._adapter = adapter
+        self._log = log
+        self._objects = Objects(handler, log=log, released=self._advertisement_released)
+        self._bus: MessageBus | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._wake: asyncio.Event | None = None
+        self._registered: set[str] = set()
+        self._bluez: str | None = None  # bluetoothd's unique name: the only caller served
+        self._problem = ""  # the last reason logged, so a retry loop logs it once
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Connect, register, serve until `stop`; then unregister and disconnect. Never
+        raises for the world's faults: they are logged and retried."""
+        self._loop = asyncio.get_running_loop()
+        self._wake = asyncio.Event()
+        delay = _Backoff()
+        while not stop.is_set():
+            bus = await self._connect(stop)
+            if bus is None:
+                await self._pause(stop, delay.next())
+                continue
+            delay.reset()
+            try:
+                await self._serve(bus, stop)
+            except Exception as exc:  # a fault of ours must not end the service
+                self._report(f"the Bluetooth service failed: {exc!r}; starting again")
+            finally:
+                await self._leave(bus)
+            if not stop.is_set():  # the connection was lost or failed: not in a tight loop
+                await self._pause(stop, delay.next())
+
+    def notify(self, char: Characteristic, value: bytes) -> bool:
+        """Send `value` to the phones listening to `char` (call on the loop's thread).
+        False when none listens or the bus is down: the value is dropped, as BLE does."""
+        bus = self._bus
+        msg = self._objects.notification(char, value) if bus is not None else None
+        if bus is None or msg is None or not bus.connected:
+            return False
+        bus.send(msg).add_done_callback(_consume)
+        return True
+
+    def notify_threadsafe(self, char: Characteristic, value: bytes) -> None:
+        """`notify` from any thread (lpam's workflow runs in a worker): queued on the loop
+        in call order; dropped when the server is not running."""
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return
+        with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+            loop.call_soon_threadsafe(self.notify, char, value)
+
+    async def _connect(self, stop: asyncio.Event) -> MessageBus | None:
+        where = self._address or "the system bus"
+        try:
+            bus = MessageBus(bus_address=self._address, bus_type=BusType.SYSTEM)
+            connected = await _first(stop, bus.connect(), CALL_TIMEOUT)
+        except Exception as exc:  # no socket, refused, auth: all mean "not yet"
+            self._report(f"cannot connect to {where}: {_reason(exc)}")
+            return None
+        if connected is None:
+            bus.disconnect()
+        return connected
+
+    async def _serve(self, bus: MessageBus, stop: asyncio.Event) -> None:
+        self._bus = bus
+        self._registered.clear()
+        bus.add_message_handler(self._on_message)
+        await _first(stop, bus.call(_daemon_call("AddMatch", "s", [OWNER_RULE])),
+                     CALL_TIMEOUT)
+        owner = await _first(stop, bus.call(_daemon_call("GetNameOwner", "s", [BLUEZ])),
+                             CALL_TIMEOUT)
+        self._bluez = (str(owner.body[0]) if owner is not None
+                       and owner.message_type is MessageType.METHOD_RETURN else None)
+        gone = asyncio.ensure_future(bus.wait_for_disconnect())  # type: ignore[no-untyped-call]
+        gone.add_done_callback(_consume)
+        delay = _Backoff()
+        try:
+            while not stop.is_set() and not gone.done():
+                if not self._missing():
+                    await self._pause(stop, None, gone)
+                elif await self._register(bus, stop):
+                    delay.reset()
+                else:
+                    await self._pause(stop, delay.next(), gone)
+            if gone.done():
+                self._report("the system bus connection was lost; connecting again")
+        finally:
+            gone.cancel()
+
+    def _missing(self) -> list[str]:
+        return [w for w in (APPLICATION, ADVERTISING) if w not in self._registered]
+
+    async def _register(self, bus: MessageBus, stop: asyncio.Event) -> bool:
+        """Register what bluetoothd does not have; False (reason logged) on a failure."""
+        for what in self._missing():
+            if what == APPLICATION:
+                call = self._adapter_call(GATT_MANAGER, "RegisterApplication", ROOT)
+            else:
+                call = self._adapter_call(ADVERTISING_MANAGER, "RegisterAdvertisement",
+                                          ADVERTISEMENT)
+            error = await _call(bus, call, stop, CALL_TIMEOUT)
+            if stop.is_set():
+                return False
+            if error is not None and not error.startswith("org.bluez.Error.AlreadyExists"):
+                self._report(f"cannot register the {what} on {self._adapter}: "
+                             f"{self._explain(error)}; retrying")
+                return False
+            self._registered.add(what)
+            self._problem = ""
+            self._log(f"registered the {what} on {self._adapter}")
+        return True
+
+    async def _leave(self, bus: MessageBus) -> None:
+        """Unregister what was registered, then close the connection."""
+        self._bus = None
+        for what in reversed([w for w in (APPLICATION, ADVERTISING)
+                              if w in self._registered]):
+            if what == APPLICATION:
+                call = self._adapter_call(GATT_MANAGER, "UnregisterApplication", ROOT,
+                                          options=False)
+            else:
+                call = self._adapter_call(ADVERTISING_MANAGER, "UnregisterAdvertisement",
+                                          ADVERTISEMENT, options=False)
+            if bus.connected and self._bluez is not None:  # else gone with the bus or it
+                await _call(bus, call, asyncio.Event(), LEAVE_TIMEOUT)  # errors ignored
+        self._registered.clear()
+        self._objects.forget()
+        bus.remove_message_handler(self._on_message)
+        bus.disconnect()
+
+    def _on_message(self, msg: Message) -> Message | None:
+        if (msg.message_type is MessageType.SIGNAL and msg.member == "NameOwnerChanged"
+                and msg.sender == DBUS and msg.body and msg.body[0] == BLUEZ):
+            self._bluez_moved(str(msg.body[1]), str(msg.body[2]))
+            return None  # dbus-fast follows name owners too: let it see the signal
+        return self._objects.answer(msg, self._bluez)
+
+    def _bluez_moved(self, left: str, arrived: str) -> None:
+        """A new bluetoothd knows nothing of lpam: everything is registered again."""
+        self._bluez = arrived or None
+        if left:
+            self._log("bluetoothd left the system bus")
+            self._objects.forget()
+        if arrived:
+            self._log("bluetoothd is on the system bus")
+        self._registered.clear()
+        self._problem = ""
+        if self._wake is not None:
+            self._wake.set()
+
+    def _advertisement_released(self) -> None:
+        self._registered.discard(ADVERTISING)
+        if self._wake is not None:
+            self._wake.set()
+
+    async def _pause(self, stop: asyncio.Event, delay: float | None,
+                     gone: asyncio.Future[Any] | None = None) -> None:
+        """Wait `delay` seconds (None: no limit), cut short by stop, bluetoothd's return
+        or arrival, or the connection's loss."""
+        assert self._wake is not None
+        waits: list[Awaitable[Any]] = [self._wake.wait()]
+        if gone is not None:
+            waits.append(asyncio.shield(gone))  # the watch outlives this pause
+        await _first(stop, _any(waits), delay)
+        self._wake.clear()
+
+    def _adapter_call(self, interface: str, member: str, path: str, *,
+                      options: bool = True) -> Message:
+        return Message(destination=BLUEZ, path=self._adapter, interface=interface,
+                       member=member, signature="oa{sv}" if options else "o",
+                       body=[path, {}] if options else [path])
+
+    def _explain(self, error: str) -> str:
+        name = error.split(":", 1)[0]
+        if name in (f"{DBUS}.Error.ServiceUnknown", f"{DBUS}.Error.NameHasNoOwner"):
+            return "bluetoothd is not running (nobody owns org.bluez on the system bus)"
+        if name in (f"{DBUS}.Error.UnknownObject", f"{DBUS}.Error.UnknownMethod",
+                    f"{DBUS}.Error.UnknownInterface"):
+            return f"bluetoothd has no adapter {self._adapter} (is the controller up?)"
+        return error
+
+    def _report(self, problem: str) -> None:
+        if problem != self._problem:
+            self._problem = problem
+            self._log(problem)
+
+
+class _Backoff:
+    def __init__(self) -> None:
+        self._delay = FIRST_DELAY
+
+    def next(self) -> float:
+        delay, self._delay = self._delay, min(self._delay * 2, MAX_DELAY)
+        return delay
+
+    def reset(self) -> None:
+        self._delay = FIRST_DELAY
+
+
+def _daemon_call(member: str, signature: str, body: list[Any]) -> Message:
+    return Message(destination=DBUS, path="/org/freedesktop/DBus", interface=DBUS,
+                   member=member, signature=signature, body=body)
+
+
+async def _call(bus: MessageBus, msg: Message, stop: asyncio.Event,
+                timeout: float) -> str | None:
+    """None when the call succeeded, else `error.name: text` (a timeout, a lost bus)."""
+    try:
+        reply = await _first(stop, bus.call(msg), timeout)
+    except Exception as exc:
+        return _reason(exc)
+    if reply is None:
+        return None if stop.is_set() else f"no answer in {timeout:g} s"
+    if reply.message_type is MessageType.ERROR:
+        text = reply.body[0] if reply.body else ""
+        return f"{reply.error_name}: {text}"
+    return None
+
+
+async def _first(stop: asyncio.Event, work: Awaitable[T], timeout: float | None) -> T | None:
+    """`work`'s result, or None when `stop` is set or `timeout` passes first (`work` is
+    then cancelled). Its exception is raised."""
+    task = asyncio.ensure_future(work)
+    stopping = asyncio.ensure_future(stop.wait())
+    try:
+        await asyncio.wait({task, stopping}, timeout=timeout,
+                           return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        stopping.cancel()
+        if not task.done():
+            task.cancel()
+    if task.cancelled() or not task.done():
+        return None
+    return task.result()
+
+
+async def _any(waits: list[Awaitable[Any]]) -> None:
+    tasks = [asyncio.ensure_future(w) for w in waits]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            if not task.done():
+                task.cancel()
+
+
+def _consume(future: asyncio.Future[Any]) -> None:
+    """Fetch a background future's exception: a lost bus is handled elsewhere."""
+    if not future.cancelled():
+        future.exception()
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, asyncio.TimeoutError):
+        return "no answer in time"
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
