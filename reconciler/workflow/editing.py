@@ -104,9 +104,9 @@ def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOpt
         elif current.app is not None and current.app.name == name:
             return
         elif isinstance(entry, MutableMapping):  # the same entry, its other keys dropped: its
-            entry["name"] = name  # comments stay where they were
+            _replace(entry, "name", name)  # comments stay where they were
             for key in [k for k in entry if k != "name"]:
-                del entry[key]
+                _drop(entry, key)
         else:
             _replace(tree, "app", name if isinstance(entry, str) else _mapping({"name": name}))
 
@@ -130,16 +130,18 @@ def add_repository(machine: Machine, repository: str, branch: str | None, *, by:
             entry = {"repo": repository} if branch is None else \
                 {"repo": repository, "ref": branch}
             if tree.get("repositories") is None:
-                tree["repositories"] = _sequence()
-            tree["repositories"].append(_mapping(entry))
+                _replace(tree, "repositories", _sequence())
+            _add(tree["repositories"], None, _mapping(entry))
             return
         if current.repositories[index].ref == branch:
             return
         item = tree["repositories"][index]
         if branch is None:
-            del item["ref"]
-        else:
+            _drop(item, "ref")
+        elif "ref" in item:
             item["ref"] = branch
+        else:
+            _add(item, "ref", branch)
 
     return edit(machine, change, by=by, options=options, report=report)
 
@@ -169,7 +171,7 @@ def remove_repository(machine: Machine, repository: str, *, by: str, options: Ap
         if wanted is not None and wanted.repository in names:
             raise LpamError(f"the desired app {wanted.name} comes from {repository}",
                             hint=f"enable another app (or none) first; {UNCHANGED}")
-        del tree["repositories"][index]
+        _drop(tree["repositories"], index)
 
     return edit(machine, change, by=by, options=options, report=report)
 
@@ -195,12 +197,15 @@ def set_params(machine: Machine, app: str, params: Mapping[str, str], *, by: str
                             hint=f"enable it first; {UNCHANGED}")
         if dict(current.app.params) == dict(params):
             return
-        if not isinstance(tree.get("app"), Mapping):  # the `app: NAME` shorthand
-            tree["app"] = _mapping({"name": app})
-        if params:
-            tree["app"]["params"] = _mapping(dict(params))
-        else:
-            tree["app"].pop("params", None)
+        if not isinstance(tree.get("app"), MutableMapping):  # the `app: NAME` shorthand
+            _replace(tree, "app", _mapping({"name": app}))
+        entry = tree["app"]
+        if "params" in entry and not params:
+            _drop(entry, "params")
+        elif "params" in entry:
+            _replace(entry, "params", _mapping(dict(params)))
+        elif params:
+            _add(entry, "params", _mapping(dict(params)))
 
     return edit(machine, change, by=by, options=options, report=report)
 
@@ -289,18 +294,85 @@ def _version_one(data: Any, path: Path) -> None:
 
 
 def _replace(tree: Any, key: str, value: Any) -> None:
-    """`tree[key] = value`, keeping the comment that ended the old value (a comment after
-    a mapping's last line belongs to its last leaf, and would go with it)."""
-    node, token = tree.get(key), None
-    while isinstance(node, (Mapping, list)) and len(node) and hasattr(node, "ca"):
-        last = list(node)[-1] if isinstance(node, Mapping) else len(node) - 1
-        found = node.ca.items.get(last)
-        if found is not None and len(found) > 2 and found[2] is not None:
-            token = found[2]
-        node = node[last]
+    """`tree[key] = value`, the comment lines that followed the old value kept after the
+    new one (ruamel keeps them with the last scalar above them: see `_cut_tail`)."""
+    rest = _cut_tail(tree, key) if key in tree else None
     tree[key] = value
-    if token is not None and not isinstance(value, (Mapping, list)):
-        tree.ca.items[key] = [None, None, token, None]
+    if rest:
+        _put_tail(tree, key, rest)
+
+
+def _add(node: Any, key: Any, value: Any) -> None:
+    """A new last key of a mapping (`key`) or item of a sequence (`key` None), the comment
+    lines that followed the old last one moved after it."""
+    last = _last(node)
+    rest = _cut_tail(node, last) if last is not None else None
+    if key is None:
+        node.append(value)
+        key = len(node) - 1
+    else:
+        node[key] = value
+    if rest:
+        _put_tail(node, key, rest)
+
+
+def _drop(node: Any, key: Any) -> None:
+    """`del node[key]`; were it the last, the comment lines after it follow the new last."""
+    rest = _cut_tail(node, key) if key == _last(node) else None
+    del node[key]
+    last = _last(node)
+    if rest and last is not None:
+        _put_tail(node, last, rest)
+
+
+def _last(node: Any) -> Any:
+    if not node:
+        return None
+    return list(node)[-1] if isinstance(node, Mapping) else len(node) - 1
+
+
+def _leaf(node: Any, key: Any) -> tuple[Any, Any]:
+    """The container and key of the last scalar under `node[key]`."""
+    while True:
+        value = node[key]
+        last = _last(value) if isinstance(value, (Mapping, list)) else None
+        if last is None or not hasattr(value, "ca"):
+            return node, key
+        node, key = value, last
+
+
+def _cut_tail(node: Any, key: Any) -> str | None:
+    """Take the whole comment lines that follow `node[key]` (kept by ruamel in the token
+    after its last scalar, behind that line's own end-of-line comment, which stays)."""
+    container, leaf = _leaf(node, key)
+    slot = container.ca.items.get(leaf)
+    at = 2 if isinstance(container, Mapping) else 0
+    token = slot[at] if slot is not None and len(slot) > at else None
+    if token is None:
+        return None
+    own, _, rest = str(token.value).partition("\n")
+    if not rest.strip():
+        return None
+    if own.strip():
+        token.value = own + "\n"
+    else:
+        slot[at] = None
+    return rest
+
+
+def _put_tail(node: Any, key: Any, rest: str) -> None:
+    from ruamel.yaml.error import CommentMark
+    from ruamel.yaml.tokens import CommentToken
+
+    container, leaf = _leaf(node, key)
+    mapping = isinstance(container, Mapping)
+    slot = container.ca.items.setdefault(leaf, [None, None, None, None] if mapping
+                                         else [None, None])
+    at = 2 if mapping else 0
+    if slot[at] is not None:  # its own end-of-line comment comes first
+        slot[at].value = str(slot[at].value).rstrip("\n") + "\n" + rest
+    else:
+        slot[at] = CommentToken("\n" + rest, CommentMark(0), None)
 
 
 def _quoted_tree(text: str) -> Any:

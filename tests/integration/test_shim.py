@@ -23,6 +23,8 @@ import pytest
 
 from reconciler.adapters.services.supervisor import shutdown
 from reconciler.layout import Layout
+from reconciler.workflow.applying import ApplyOptions
+from reconciler.workflow.machine import Machine
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam
 
@@ -41,6 +43,9 @@ apps:
   - name: tocker
     command: [python3, -u, run.py]
     health: {settle_seconds: 0.5}
+  - name: crasher
+    command: [python3, -u, run.py]
+    health: {settle_seconds: 1}
 """
 TOCKER = 'Données GPS → CAN, "quoted" \\ back'
 GADGET = """\
@@ -114,7 +119,8 @@ def shim(tmp_path: Path, git_daemon: GitDaemon, make_repo: Callable[[str], RepoB
     for name, text in (("ticker", "ticks"), ("tocker", TOCKER)):
         apps.write(f"{name}/run.py", TICKER)
         apps.write(f"{name}/description.txt", text + "\nsecond line\n")
-    apps.commit("ticker and tocker")
+    apps.write("crasher/run.py", "import sys\nsys.exit(3)\n")
+    apps.commit("ticker, tocker and crasher")
     apps.push()
     tools = make_repo("extra/tools")
     tools.commit("no apps on main")
@@ -183,12 +189,14 @@ def test_the_table_is_lpams_and_bluezone_reads_it(shim: Shim) -> None:
          "service": "lpam-app-ticker", "enabled": "yes", "running": "yes", "description": "ticks"},
         {"repository": "fleet/apps", "branch": "main", "app": "tocker", "service": "",
          "enabled": "no", "running": "no", "description": TOCKER.replace('"', "")},
+        {"repository": "fleet/apps", "branch": "main", "app": "crasher", "service": "",
+         "enabled": "no", "running": "no", "description": ""},
     ]
-    assert shim.ok("-l") == "ticker tocker\n"
+    assert shim.ok("-l") == "ticker tocker crasher\n"
     assert shim.ok("-c") == "ticker\n"
     assert shim.ok("-t") == "unit lpam-app-ticker active (running)\n"
     # clustered as getopts reads them, in the order given
-    assert shim.ok("-cl") == "ticker\nticker tocker\n"
+    assert shim.ok("-cl") == "ticker\nticker tocker crasher\n"
 
 
 def test_i_switches_the_app_and_it_really_runs(shim: Shim) -> None:
@@ -205,7 +213,7 @@ def test_i_switches_the_app_and_it_really_runs(shim: Shim) -> None:
     assert text.replace("tocker", "ticker") == before  # comments and layout kept
     rows = bluezone_rows(shim.ok("-d").encode())
     assert [(r["app"], r["enabled"], r["running"]) for r in rows] == \
-        [("ticker", "no", "no"), ("tocker", "yes", "yes")]
+        [("ticker", "no", "no"), ("tocker", "yes", "yes"), ("crasher", "no", "no")]
     # the same app again: nothing to do, success
     assert shim("-i", "tocker").returncode == 0 and shim.path.read_text() == text
 
@@ -220,6 +228,8 @@ def test_refusals_change_nothing_and_exit_non_zero(shim: Shim) -> None:
     assert "whitespace" in shim.refused("-i", "a b")
     assert "'..'" in shim.refused("-g", "x/..")
     assert "GitHub repository" in shim.refused("-g", "https://evil/x")
+    # the cutover fails (health check, rolled back): the file says what runs, exit 3
+    assert "crasher" in shim.refused("-i", "crasher", code=3)
     # usage errors: exit 2
     assert "refused" in shim.refused("-i", "--upload-pack=x", code=2)
     assert "refused" in shim.refused("-i--upload-pack=x", code=2)
@@ -230,8 +240,10 @@ def test_refusals_change_nothing_and_exit_non_zero(shim: Shim) -> None:
     assert "unexpected argument" in shim.refused("-c", "extra", code=2)
     # an earlier flag's failure stops the later ones
     assert "not in the catalog" in shim.refused("-i", "gamma", "-u")
-    assert running_pid(shim) == pid
     assert shim.ok("-c") == "ticker\n"
+    assert shim.unit()["name"] == "lpam-app-ticker"
+    running_pid(shim)
+    assert pid
 
 
 def test_a_repository_added_and_removed_keeps_the_files_comments(shim: Shim) -> None:
@@ -251,7 +263,8 @@ def test_a_repository_added_and_removed_keeps_the_files_comments(shim: Shim) -> 
     assert shim.path.read_text() == text
     shim.ok("-r", "extra/tools")
     assert shim.path.read_text() == before
-    assert [r["app"] for r in bluezone_rows(shim.ok("-d").encode())] == ["ticker", "tocker"]
+    assert [r["app"] for r in bluezone_rows(shim.ok("-d").encode())] == \
+        ["ticker", "tocker", "crasher"]
     running_pid(shim)
 
 
@@ -283,4 +296,27 @@ def test_p_moves_branches_to_their_tips(shim: Shim, make_repo: Callable[[str], R
     assert bluezone_rows(shim.ok("-d").encode())[0]["description"] == "ticks faster"
     record = json.loads((shim.root / "var/lib/lpam/state.json").read_text())
     assert record["repositories"][0]["commit"] == apps.rev("HEAD")
+    running_pid(shim)
+
+
+def test_a_params_edit_restarts_the_app_without_reinstalling(shim: Shim) -> None:
+    """The phone's `app_params`: the same function, in-process on the shim's root."""
+    from reconciler.workflow.editing import set_params
+    from reconciler.workflow.events import Event, Planned
+
+    pid = running_pid(shim)
+    kinds: list[str] = []
+
+    def report(event: Event) -> None:
+        if isinstance(event, Planned):
+            kinds.extend(str(step.kind) for step in event.plan.steps)
+
+    machine = Machine.at(Layout(shim.root))
+    done = set_params(machine, "ticker", {"RATE": "20 Hz"}, by="phone",
+                      options=ApplyOptions(lock_timeout=2), report=report)
+    assert done.changed and kinds and not {"stage", "install", "uninstall"} & set(kinds)
+    assert shim.path.read_text().endswith(
+        "app:\n  name: ticker\n  params:\n    RATE: 20 Hz\n# end of file\n")
+    assert gone(pid)
+    assert shim.lpam.status()["app"]["params"] == {"RATE": "20 Hz"}
     running_pid(shim)
