@@ -18,6 +18,7 @@ written as a space.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -256,6 +257,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except LpamError as exc:
         _fail(one_line(exc))
         return exc.exit_code
+    except BrokenPipeError:  # `libpanda-app-manager -d | head -1`: the reader left
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
     except (KeyboardInterrupt, Terminated) as exc:
         _fail("interrupted: lpam recorded where it stood; `lpam apply` goes on from there")
         return 143 if isinstance(exc, Terminated) else 130

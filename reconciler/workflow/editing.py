@@ -241,12 +241,17 @@ def _apply(machine: Machine, found: override.Editable, text: str, desired: Desir
            by: str, options: ApplyOptions, report: Report) -> Edited:
     """The edited text is written when the plan made under the lock is confirmed, and
     the old one put back if the execution fails; with no step to run, it is written after
-    (nothing on the machine changes)."""
+    (nothing on the machine changes), under the lock again. Either way only if the file
+    still holds what the edit began from: two frontends editing at once must not undo
+    each other's change (the second is refused, to be made again on the new text)."""
+    from reconciler.execution.lock import apply_lock
+
     old = None if found.seeded else found.text.encode("utf-8")
     new = text.encode("utf-8")
     written: list[bool] = []
 
     def confirm(plan: Plan) -> bool:
+        _unchanged(found.path, old)
         _put(found.path, new, old)
         written.append(True)
         return True
@@ -260,9 +265,28 @@ def _apply(machine: Machine, found: override.Editable, text: str, desired: Desir
             _put(found.path, old, new)
         raise
     if not written:
-        _put(found.path, new, old)
+        with apply_lock(machine.layout, timeout=options.lock_wait()):
+            _unchanged(found.path, old)
+            _put(found.path, new, old)
     override.begin(machine, by=by, seeded=found.seeded)
     return Edited(changed=new != old, applied=done)
+
+
+def _unchanged(path: Path, old: bytes | None) -> None:
+    """Refuse to write over a desired state that changed since the edit read it."""
+    from reconciler.reading import read_bounded
+
+    try:
+        now = read_bounded(path, limit=len(old or b"") + 1, what="the desired state",
+                           hint="")
+    except FileNotFoundError:
+        now = None
+    except LpamError:  # larger than it was: changed
+        now = b""
+    if now != old:
+        raise LpamError("the desired state changed while this edit waited for the lock "
+                        "(another edit, or a hand edit)",
+                        hint=f"make the edit again on the new desired state; {UNCHANGED}")
 
 
 def _put(path: Path, data: bytes | None, before: bytes | None) -> None:

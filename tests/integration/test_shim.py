@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.services.supervisor import shutdown
+from reconciler.errors import LpamError
 from reconciler.layout import Layout
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.machine import Machine
@@ -312,11 +313,22 @@ def test_a_params_edit_restarts_the_app_without_reinstalling(shim: Shim) -> None
             kinds.extend(str(step.kind) for step in event.plan.steps)
 
     machine = Machine.at(Layout(shim.root))
+    hand_edit = shim.path.read_text() + "# a hand edit while the plan was made\n"
+
+    def meddle(event: Event) -> None:
+        if isinstance(event, Planned):
+            shim.path.write_text(hand_edit)
+
+    with pytest.raises(LpamError, match="changed while this edit waited"):
+        set_params(machine, "ticker", {"RATE": "5"}, by="phone",
+                   options=ApplyOptions(lock_timeout=2), report=meddle)
+    assert shim.path.read_text() == hand_edit and running_pid(shim) == pid
     done = set_params(machine, "ticker", {"RATE": "20 Hz"}, by="phone",
                       options=ApplyOptions(lock_timeout=2), report=report)
     assert done.changed and kinds and not {"stage", "install", "uninstall"} & set(kinds)
     assert shim.path.read_text().endswith(
-        "app:\n  name: ticker\n  params:\n    RATE: 20 Hz\n# end of file\n")
+        "app:\n  name: ticker\n  params:\n    RATE: 20 Hz\n# end of file\n"
+        "# a hand edit while the plan was made\n")
     assert gone(pid)
     assert shim.lpam.status()["app"]["params"] == {"RATE": "20 Hz"}
     running_pid(shim)

@@ -19,7 +19,7 @@ from reconciler.layout import Layout
 from reconciler.shim import Command, UsageError, bluezone_safe, parse, table
 from reconciler.workflow import editing
 from reconciler.workflow.applying import ApplyOptions
-from reconciler.workflow.events import Event
+from reconciler.workflow.events import Event, Planned
 from reconciler.workflow.inventory import AppRow
 from reconciler.workflow.machine import Machine
 
@@ -172,3 +172,18 @@ def test_a_tab_or_newline_in_a_value_cannot_split_bluezones_columns() -> None:
     out = table([row])
     lines = bluezone(out).split("\n")[1:-1]
     assert lines == ['o/r\tmain\ta\t\tyes\tno\t"one two three"']
+
+
+def test_an_edit_never_writes_over_a_change_made_while_it_waited(machine: Machine) -> None:
+    """Two frontends at once: the desired state changes after this edit read it (here
+    while its plan is made, under the lock); writing its text would undo that change."""
+    path = machine.layout.desired_state
+    meddled = TEXT.replace("alpha", "beta")
+
+    def meddle(event: Event) -> None:
+        if isinstance(event, Planned):
+            path.write_text(meddled)
+
+    with pytest.raises(LpamError, match="changed while this edit waited"):
+        editing.enable_app(machine, None, by="test", options=options(), report=meddle)
+    assert path.read_text() == meddled
