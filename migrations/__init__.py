@@ -22,6 +22,7 @@ from typing import Any, Union
 from migrations import (
     agent_status_v1_to_v2,
     car_status_v0_to_v1,
+    car_status_v1_to_v2,
     desired_state_v0_to_v1,
     generation_meta_v0_to_v1,
     plan_v1_to_v2,
@@ -36,7 +37,7 @@ from schemas.kinds import DocumentKind as K
 
 CURRENT: dict[DocumentKind, int] = {
     K.DESIRED_STATE: 1, K.STATE_RECORD: 4, K.PLAN: 2, K.AGENT_CONFIG: 1, K.AGENT_STATUS: 2,
-    K.GENERATION_META: 1, K.CAR_STATUS: 1,
+    K.GENERATION_META: 1, K.CAR_STATUS: 2, K.OVERRIDE: 1,
 }
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
@@ -49,7 +50,9 @@ STEPS: dict[DocumentKind, dict[str, tuple[str, Step]]] = {
     K.AGENT_CONFIG: {},
     K.AGENT_STATUS: {"1": ("2", agent_status_v1_to_v2.upgrade)},
     K.GENERATION_META: {"0": ("1", generation_meta_v0_to_v1.upgrade)},
-    K.CAR_STATUS: {"0": ("1", car_status_v0_to_v1.upgrade)},
+    K.CAR_STATUS: {"0": ("1", car_status_v0_to_v1.upgrade),
+                   "1": ("2", car_status_v1_to_v2.upgrade)},
+    K.OVERRIDE: {},
 }
 
 _MISSING_HINTS: dict[DocumentKind, str] = {
@@ -61,6 +64,8 @@ _MISSING_HINTS: dict[DocumentKind, str] = {
     K.AGENT_STATUS: "this status file was not written by lpam; move it aside",
     K.GENERATION_META: "this file was not written by lpam; move it aside",
     K.CAR_STATUS: "the car publishes a new one with its next status",
+    K.OVERRIDE: "this file was not written by lpam; move it aside (the car then follows "
+    "its fleet again)",
 }
 
 _NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
@@ -69,6 +74,7 @@ _LABELS: dict[DocumentKind, str] = {
     K.DESIRED_STATE: "desired state", K.STATE_RECORD: "state record", K.PLAN: "plan",
     K.AGENT_CONFIG: "agent configuration", K.AGENT_STATUS: "agent status",
     K.GENERATION_META: "generation metadata", K.CAR_STATUS: "car's published status",
+    K.OVERRIDE: "local override",
 }
 
 Position = Callable[[Sequence[Union[str, int]]], Union[tuple[int, int], tuple[None, None]]]

@@ -147,7 +147,8 @@ def _plan_apply(new: New) -> None:
     _add(apply, "lock-timeout", "script-timeout", "network-timeout", "services",
          "keep-generations")
     apply.add_argument("--release", action="store_true",
-                       help="end a rollback's hold and apply the desired state again")
+                       help="end a rollback's hold (and a local override of the fleet's "
+                       "file) and apply the desired state again")
     _add(apply, "wait")
 
 

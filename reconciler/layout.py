@@ -166,6 +166,16 @@ class Layout:
         return self.var / "status.json"
 
     @property
+    def override(self) -> Path:
+        """A local edit that overrides the fleet's desired state (schemas/override.py)."""
+        return self.var / "override.json"
+
+    @property
+    def override_ended(self) -> Path:
+        """The local desired-state file an ended override set aside, for the record."""
+        return self.var / "override-ended.yaml"
+
+    @property
     def agent_files(self) -> Path:
         """Files a followed desired state names relative to itself (a DBC, a CAN log),
         copied out of the source: `<revision>/<path in the source>`."""

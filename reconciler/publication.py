@@ -16,7 +16,9 @@ What counts as a change (`essentials`), exactly:
   that applied is no news), and its reason, except a deferral's: that names the seconds
   and the speed of the moment ("stationary for 12 s") and would make every deferred pass
   news; that the pass was deferred still counts;
-- the app: its name, generation, lifecycle status and whether it runs.
+- the app: its name, generation, lifecycle status and whether it runs;
+- a local override (a phone's or libpanda-app-manager's edit): who, since when, how many
+  edits.
 
 Not counted: the times of the passes and their list (every pass adds one), and the last
 publication itself.
@@ -57,6 +59,7 @@ from reconciler.errors import ConfigError
 from schemas.agent import AgentStatus, Publication
 from schemas.fleet import CarStatus, PublishedApp
 from schemas.kinds import DocumentKind
+from schemas.override import LocalOverride
 
 STATUS_FILE = "status.json"
 """The file a car publishes on `status/<vehicle>`."""
@@ -75,7 +78,8 @@ APP_FIELDS = ("name", "generation", "status", "running")
 """What the fleet sees of the installed app (from `lpam status --json`)."""
 
 
-def essentials(status: AgentStatus, app: Mapping[str, Any] | None) -> dict[str, Any]:
+def essentials(status: AgentStatus, app: Mapping[str, Any] | None,
+               override: LocalOverride | None = None) -> dict[str, Any]:
     """What of this status counts as a change: see the module docstring."""
     last = status.last_attempt
     attempt = None
@@ -90,12 +94,15 @@ def essentials(status: AgentStatus, app: Mapping[str, Any] | None) -> dict[str, 
         "applied_revision": status.applied_revision,
         "last_attempt": attempt,
         "app": None if app is None else {key: app.get(key) for key in APP_FIELDS},
+        "override": None if override is None else {"since": override.since, "by": override.by,
+                                                   "edits": override.edits},
     }
 
 
-def fingerprint(status: AgentStatus, app: Mapping[str, Any] | None) -> str:
+def fingerprint(status: AgentStatus, app: Mapping[str, Any] | None,
+                override: LocalOverride | None = None) -> str:
     """A digest of the essentials: equal exactly when nothing that counts changed."""
-    text = json.dumps(essentials(status, app), sort_keys=True, separators=(",", ":"))
+    text = json.dumps(essentials(status, app, override), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
@@ -127,10 +134,12 @@ def keeps_parent(length: int, bound: int = HISTORY) -> bool:
     return 0 < length < bound
 
 
-def status_file(status: AgentStatus, app: Mapping[str, Any] | None) -> bytes:
-    """The file a car publishes: its agent's status and what the fleet sees of its app."""
+def status_file(status: AgentStatus, app: Mapping[str, Any] | None,
+                override: LocalOverride | None = None) -> bytes:
+    """The file a car publishes: its agent's status, what the fleet sees of its app, and a
+    local override in force."""
     shown = None if app is None else PublishedApp(**{key: app.get(key) for key in APP_FIELDS})
-    body = CarStatus(agent=status, app=shown).model_dump(mode="json")
+    body = CarStatus(agent=status, app=shown, override=override).model_dump(mode="json")
     return (json.dumps(body, indent=2, sort_keys=True) + "\n").encode("utf-8")
 
 

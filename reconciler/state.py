@@ -33,6 +33,7 @@ from schemas.record import AppRecord, StateRecord, Stray
 
 if TYPE_CHECKING:
     from schemas.agent import AgentStatus
+    from schemas.override import LocalOverride
 
 LIMIT = 4 * MIB
 
@@ -45,6 +46,20 @@ DAMAGED_HINT = (
 ExitCode = Callable[[str], Optional[int]]
 
 SETTLED = {"installing": "installed", "starting": "running", "stopping": "installed"}
+
+
+def read_override(layout: Layout) -> LocalOverride | None:
+    """The local override in force (`override.json`); None when the car follows its fleet
+    file (or follows none)."""
+    from reconciler.documents import parse_json
+    from reconciler.loading import read_text
+    from schemas.override import LocalOverride
+
+    path = layout.override
+    if not path.exists():
+        return None
+    return parse_json(DocumentKind.OVERRIDE, read_text(path), path, LocalOverride,
+                      hint="move the file aside: the car then follows its fleet file again")
 
 
 def read_agent_status(layout: Layout) -> AgentStatus | None:

@@ -248,8 +248,22 @@ def as_json(layout: Layout, *, store: Objects | None = None,
         "serial": record.serial,
         "lineage": record.lineage,
         "agent": _agent(layout),
+        "override": _override(layout),
         "deferred": _deferred(layout),
     }
+
+
+def _override(layout: Layout) -> dict[str, Any] | None:
+    """The local override in force (reconciler/workflow/override.py); a damaged file is
+    reported, not raised: status must always answer."""
+    from reconciler.errors import LpamError
+    from reconciler.state import read_override
+
+    try:
+        found = read_override(layout)
+    except LpamError as exc:
+        return {"error": exc.message}
+    return None if found is None else found.model_dump(mode="json")
 
 
 def _deferred(layout: Layout) -> dict[str, str] | None:
@@ -420,4 +434,14 @@ def _agent_footer(layout: Layout) -> list[str]:
     if last is not None:
         why = f": {last['reason']}" if last.get("reason") else ""
         line += f"; last pass: {last['result']} at {last['time']}{why}"
-    return [printable(line)]
+    lines = [printable(line)]
+    override = _override(layout)
+    if override is not None and "error" in override:
+        lines.append(f"Local override: its file is unreadable: {printable(override['error'])}")
+    elif override is not None:
+        lines.append(printable(
+            f"Local override: the desired state was edited on this car ({override['by']}, "
+            f"{override['edits']} edit(s) since {override['since']}); the agent applies it "
+            "instead of the fleet's file until `lpam apply --release` or the phone's update "
+            "ends it."))
+    return lines

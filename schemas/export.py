@@ -18,6 +18,7 @@ from schemas.catalog import RawCatalog
 from schemas.desired import DesiredState
 from schemas.fleet import CarStatus
 from schemas.generation import GenerationMeta
+from schemas.override import LocalOverride
 from schemas.plan import Plan
 from schemas.record import StateRecord
 
@@ -29,7 +30,8 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "generation-meta.v1.schema.json": GenerationMeta,
     "agent.v1.schema.json": AgentConfig,
     "agent-status.v2.schema.json": AgentStatus,
-    "car-status.v1.schema.json": CarStatus,
+    "car-status.v2.schema.json": CarStatus,
+    "override.v1.schema.json": LocalOverride,
 }
 FOLDER = Path(__file__).resolve().parent / "json"
 

@@ -1,10 +1,11 @@
 """The status file a car publishes on the branch `status/<vehicle>` of its desired-state
 repository (`status.json`), which `lpam fleet status` reads in any clone.
 
-Version 1. Files published before it carry no `version` (version 0): the same two parts,
-the agent's status as that car's lpam wrote it (an agent status version 1 or 2) and the
-app; migrations/car_status_v0_to_v1.py brings one to version 1. Written and read in one
-place, reconciler/publication.py.
+Version 2 adds `override`: a local edit the car runs instead of its fleet file
+(migrations/car_status_v1_to_v2.py). Files published before version 1 carry no `version`
+(version 0): the same two parts, the agent's status as that car's lpam wrote it (an agent
+status version 1 or 2) and the app; migrations/car_status_v0_to_v1.py brings one to version
+1. Written and read in one place, reconciler/publication.py.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.agent import AgentStatus
+from schemas.override import LocalOverride
 
 
 class PublishedApp(BaseModel):
@@ -32,6 +34,9 @@ class CarStatus(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    version: Literal[1] = 1
+    version: Literal[2] = 2
     agent: AgentStatus
     app: PublishedApp | None = None
+    override: LocalOverride | None = Field(
+        default=None, description="a local edit (phone, libpanda-app-manager) the car runs "
+        "instead of its fleet file, until it is released")

@@ -28,3 +28,4 @@ class DocumentKind(StrEnum):
     AGENT_STATUS = "agent-status"
     GENERATION_META = "generation-meta"
     CAR_STATUS = "car-status"
+    OVERRIDE = "override"

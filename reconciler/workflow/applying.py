@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
     from reconciler.execution.lock import Lock
     from reconciler.execution.ports import Gate, Listener
+    from reconciler.workflow.sync import Followed
     from schemas.desired import DesiredState
     from schemas.plan import Plan
     from schemas.record import DesiredRef
@@ -92,8 +93,27 @@ def apply_file(machine: Machine, path: Path, *, options: ApplyOptions,
     from reconciler.documents import load_desired
 
     machine.warm_network()
+    if options.release and path == machine.layout.desired_state:
+        fleet = _end_override(machine, options, report)
+        if fleet is not None:  # the car follows its fleet's file again, at once
+            return apply(machine, fleet.label, fleet.desired, options=options,
+                         confirm=confirm, report=report, base_dir=fleet.base_dir)
     desired = load_desired(path)
     return apply(machine, path, desired, options=options, confirm=confirm, report=report)
+
+
+def _end_override(machine: Machine, options: ApplyOptions, report: Report) -> Followed | None:
+    """`lpam apply --release` on a car under a local override (workflow/override.py):
+    the override ends, and the desired state to apply is the fleet's file at the revision
+    the agent applied (None: no override, or the agent never applied one)."""
+    from reconciler.execution.lock import apply_lock
+    from reconciler.workflow import override
+    from reconciler.workflow.sync import applied_desired
+
+    with apply_lock(machine.layout, timeout=options.lock_wait()):
+        if override.end(machine, report) is None:
+            return None
+    return applied_desired(machine)
 
 
 def desired_ref(desired: DesiredState, path: Path) -> DesiredRef:

@@ -40,6 +40,7 @@ from reconciler.errors import (
     StoreDamagedError,
     TrustError,
 )
+from reconciler.state import read_override
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Progress, Report
@@ -64,7 +65,10 @@ from schemas.agent import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from schemas.desired import DesiredState
+    from schemas.override import LocalOverride
 
 
 
@@ -126,6 +130,10 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     status = status.model_copy(update={"follows": followed(machine, vehicle, revision)})
     if fetch_only:
         return _record(machine, status, _fetch_pins(machine, config, vehicle, revision, report))
+    local = read_override(machine.layout)
+    if local is not None:
+        return _record(machine, status, _overridden(machine, local, revision, options=options,
+                                                    report=report, offline=offline is not None))
     if offline and source.live and revision == status.applied_revision:
         return _record(machine, status, Synced("offline", revision, offline))
     if config.trust is not None:
@@ -138,26 +146,56 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
         report(Note(f"revision {revision[:12]} failed before; waiting for a new one"))
         return _record(machine, status, Synced("nothing to do", revision,
                                                "this revision failed before"))
+    chosen = lambda: _desired(machine, config, vehicle, revision,  # noqa: E731
+                              keep=frozenset(filter(None, [status.applied_revision])))
+    done = _applied(machine, chosen, revision, options=options, report=report,
+                    local=offline is not None)
+    if done.result in ("applied", "nothing to do"):
+        status = status.model_copy(update={"applied_revision": revision})
+    return _record(machine, status, done)
+
+
+def _applied(machine: Machine, choose: Callable[[], Followed], revision: str | None, *,
+             options: ApplyOptions, report: Report, local: bool, why: str | None = None
+             ) -> Synced:
+    """Apply the desired state `choose` reads; how it ended, as this pass records it
+    (`revision`: the source's revision the attempt is recorded against, None for a local
+    override's, which must never mark a fleet revision as failed)."""
     try:
-        chosen = _desired(machine, config, vehicle, revision,
-                          keep=frozenset(filter(None, [status.applied_revision])))
+        chosen = choose()
         done = apply(machine, chosen.label, chosen.desired, options=options,
-                     confirm=lambda plan: True, report=report, local=offline is not None,
+                     confirm=lambda plan: True, report=report, local=local,
                      base_dir=chosen.base_dir)
     except StopRequested as exc:  # not a failure: the next pass tries the revision again
-        return _record(machine, status, Synced("stopped", revision, exc.message))
+        return Synced("stopped", revision, exc.message)
     except Deferred as exc:  # prepared, not cut over: the next pass tries again
         report(Note(exc.message))
-        return _record(machine, status, Synced("deferred", revision, exc.message))
+        return Synced("deferred", revision, exc.message)
     except StoreDamagedError as exc:  # and no network to fetch it anew
-        return _record(machine, status, Synced("offline", revision, exc.message, exc.hint))
+        return Synced("offline", revision, exc.message, exc.hint)
     except LpamError as exc:
         failed: Result = "rolled back" if isinstance(exc, HealthError) else "failed"
-        return _record(machine, status, Synced(failed, revision, _reason(exc), exc.hint))
-    status = status.model_copy(update={"applied_revision": revision})
+        return Synced(failed, revision, _reason(exc), exc.hint)
     outcome: Result = "applied" if done.steps else "nothing to do"
-    report(Progress(f"{outcome}: revision {revision[:12]} ({done.app})"))
-    return _record(machine, status, Synced(outcome, revision))
+    what = f"revision {revision[:12]}" if revision is not None else "the local override"
+    report(Progress(f"{outcome}: {what} ({done.app})"))
+    return Synced(outcome, revision, why)
+
+
+def _overridden(machine: Machine, local: LocalOverride, revision: str, *,
+                options: ApplyOptions, report: Report, offline: bool) -> Synced:
+    """A local override is in force (workflow/override.py): the pass applies the local
+    file, not the fleet's — which finishes an edit a power cut interrupted, and leaves one
+    that was applied as it is — and the fleet's revision waits for the override's end."""
+    from reconciler.documents import load_desired
+
+    path = machine.layout.desired_state
+    why = (f"local override ({local.by}, since {local.since}): the fleet's revision "
+           f"{revision[:12]} waits until `lpam apply --release` or the phone's update")
+    report(Note(why))
+    done = _applied(machine, lambda: Followed(path, load_desired(path), path.resolve().parent),
+                    None, options=options, report=report, local=offline, why=why)
+    return done if done.reason is not None else Synced(done.result, None, why, done.hint)
 
 
 def _trusted(machine: Machine, config: AgentConfig, revision: str) -> str:
@@ -195,7 +233,8 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     app = machine_status.as_json(machine.layout, state=machine.services.state)["app"]
     shown = None if app is None else {k: app[k] for k in APP_FIELDS}
     now = machine.clock()
-    mark = fingerprint(own, shown)
+    local = read_override(machine.layout)
+    mark = fingerprint(own, shown, local)
     why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
     if why is None:
         return
@@ -203,7 +242,7 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     result: Published = "pushed"
     reason = None
     try:
-        _push(machine, config, branch, status_file(own, shown), when=int(now.timestamp()),
+        _push(machine, config, branch, status_file(own, shown, local), when=int(now.timestamp()),
               report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:

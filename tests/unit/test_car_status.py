@@ -16,9 +16,10 @@ import migrations
 from migrations import car_status_v0_to_v1
 from reconciler.errors import ConfigError, VersionError
 from reconciler.loading import load
-from reconciler.publication import read_status_file, status_file
+from reconciler.publication import fingerprint, read_status_file, status_file
 from schemas.agent import AgentStatus, Attempt
 from schemas.fleet import CarStatus
+from schemas.override import LocalOverride
 
 FIXTURES = Path(migrations.__file__).parent / "fixtures" / "car-status" / "v0_to_v1"
 WHERE = Path("status/rav4-07/status.json")
@@ -32,13 +33,29 @@ APP = {"name": "alpha", "generation": "0123456789ab", "status": "installed", "ru
 def test_what_a_car_publishes_reads_back() -> None:
     content = status_file(STATUS, APP)
     body = json.loads(content)
-    assert body["version"] == 1 and set(body["app"]) == {"name", "generation", "status",
+    assert body["version"] == 2 and set(body["app"]) == {"name", "generation", "status",
                                                           "running"}
     assert body["agent"] == STATUS.model_dump(mode="json")  # the agent's part as before
     read = read_status_file(content, where=WHERE)
     assert read is not None and read.agent == STATUS and read.app is not None
     assert (read.app.name, read.app.running) == ("alpha", True)
     assert read_status_file(status_file(STATUS, None), where=WHERE) == CarStatus(agent=STATUS)
+
+
+def test_a_local_override_is_published_and_read_back() -> None:
+    local = LocalOverride(since="2026-11-25T09:00:00+00:00", by="phone", edits=2,
+                          revision="c" * 40, seeded=True)
+    read = read_status_file(status_file(STATUS, APP, local), where=WHERE)
+    assert read is not None and read.override == local
+    assert fingerprint(STATUS, APP, local) != fingerprint(STATUS, APP)  # a change is news
+
+
+def test_a_version_1_file_has_no_override() -> None:
+    body = json.loads(status_file(STATUS, APP))
+    body["version"] = 1
+    del body["override"]
+    read = read_status_file(json.dumps(body).encode(), where=WHERE)
+    assert read is not None and read.override is None and read.agent == STATUS
 
 
 def test_a_file_from_before_the_version_is_read() -> None:
@@ -68,7 +85,7 @@ def test_a_damaged_status_says_where(body: dict[str, Any], said: str) -> None:
 
 def test_a_newer_lpams_status_says_so() -> None:
     with pytest.raises(VersionError, match="newer lpam"):
-        read_status_file(json.dumps({"version": 2, "agent": {}}).encode(), where=WHERE)
+        read_status_file(json.dumps({"version": 3, "agent": {}}).encode(), where=WHERE)
 
 
 def pairs() -> list[tuple[Path, Path]]:

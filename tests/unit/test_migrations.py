@@ -44,6 +44,7 @@ STEP_FIXTURES = {
     ("plan", "1"): FIXTURES / "plan" / "v1_to_v2",
     ("generation-meta", "0"): FIXTURES / "generation-meta" / "v0_to_v1",
     ("car-status", "0"): FIXTURES / "car-status" / "v0_to_v1",
+    ("car-status", "1"): FIXTURES / "car-status" / "v1_to_v2",
 }
 PATH = Path("doc.yaml")
 
