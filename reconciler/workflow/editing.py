@@ -212,10 +212,20 @@ def set_params(machine: Machine, app: str, params: Mapping[str, str], *, by: str
 
 def update(machine: Machine, *, options: ApplyOptions, report: Report) -> Applied:
     """LPAM's `-p`, the phone's `app_update`: the default desired state applied with
-    fetching, so branches move to their tips. A local override ends first."""
-    override.end(machine, report)
-    return apply_file(machine, machine.layout.desired_state, options=options,
-                      confirm=lambda plan: True, report=report)
+    fetching, so branches move to their tips. Under a local override it is what
+    `lpam apply --release` does (workflow/applying.py): the override ends, and the car
+    applies its fleet's file again."""
+    from dataclasses import replace
+
+    path = machine.layout.desired_state
+    if override.active(machine) is not None:
+        options = replace(options, release=True)
+    elif not path.exists() and override.follows_fleet(machine):
+        raise LpamError("this car follows its fleet's desired state and has no local one "
+                        "to update", hint="`lpam sync` fetches and applies the fleet's file; "
+                        f"{UNCHANGED}")
+    return apply_file(machine, path, options=options, confirm=lambda plan: True,
+                      report=report)
 
 
 def edit(machine: Machine, change: Change, *, by: str, options: ApplyOptions,

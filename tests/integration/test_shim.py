@@ -332,3 +332,28 @@ def test_a_params_edit_restarts_the_app_without_reinstalling(shim: Shim) -> None
     assert gone(pid)
     assert shim.lpam.status()["app"]["params"] == {"RATE": "20 Hz"}
     running_pid(shim)
+
+
+def test_on_a_fleet_car_an_edit_is_a_local_override_that_p_ends(car: Lpam, fleet: RepoBuilder
+                                                                 ) -> None:
+    """The car follows a fleet repository (conftest: alpha for every car) and has no
+    desired state of its own: `-i` starts one from the fleet's file, and the agent's next
+    pass leaves it; `-p` ends it and the car follows its fleet again."""
+    shim = Shim(car.root)
+    try:
+        assert car("sync").returncode == 0
+        assert shim.ok("-c") == "alpha\n" and not shim.path.exists()
+        assert [r["app"] for r in bluezone_rows(shim.ok("-d").encode())] == ["alpha", "beta"]
+        shim.ok("-i", "beta")
+        assert shim.ok("-c") == "beta\n"
+        first = shim.path.read_text().splitlines()[0]
+        assert first.startswith("#") and "Made on this car from the fleet's" in first
+        override = json.loads(Layout(car.root).override.read_text())
+        assert override["by"] == "libpanda-app-manager" and override["seeded"] is True
+        assert car("sync").returncode == 0  # the agent's pass: the override holds
+        assert shim.ok("-c") == "beta\n"
+        assert "Ended the local override" in shim.ok("-p")
+        assert shim.ok("-c") == "alpha\n"
+        assert not Layout(car.root).override.exists() and not shim.path.exists()
+    finally:
+        shutdown(Layout(car.root))
