@@ -187,3 +187,25 @@ def test_an_edit_never_writes_over_a_change_made_while_it_waited(machine: Machin
     with pytest.raises(LpamError, match="changed while this edit waited"):
         editing.enable_app(machine, None, by="test", options=options(), report=meddle)
     assert path.read_text() == meddled
+
+
+def test_a_bug_is_one_line_and_its_traceback_goes_to_the_debug_log(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from reconciler import shim
+
+    def broken(machine: Machine, command: Command) -> None:
+        raise RuntimeError("a bug")
+
+    monkeypatch.setenv("LPAM_ROOT", str(tmp_path))
+    monkeypatch.setattr(shim, "run", broken)
+    monkeypatch.setattr(shim.signal, "signal", lambda *args: None)  # pytest's stays
+    assert shim.main(["-c"]) == 1
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.count("\n") == 1
+    assert out.err.startswith("libpanda-app-manager: error: internal error; details in ")
+    assert "RuntimeError: a bug" in Layout(tmp_path).debug_log.read_text()
+    assert shim.main(["-h"]) == 0 and "usage: libpanda-app-manager" in capsys.readouterr().out
+    assert shim.main(["-q"]) == 2
+    assert capsys.readouterr().err == \
+        "libpanda-app-manager: error: unknown option -q (see libpanda-app-manager -h)\n"
