@@ -18,6 +18,7 @@ refused before any lock is taken, so a bad value never waits on another apply.
 
 from __future__ import annotations
 
+import io
 import re
 from collections.abc import Callable, Mapping, MutableMapping
 from dataclasses import dataclass
@@ -234,15 +235,17 @@ def edit(machine: Machine, change: Change, *, by: str, options: ApplyOptions,
     is validated, and apply it (see `_apply`). Everything up to the apply happens before
     the lock: a refused edit never waits."""
     from reconciler.documents import desired_from
-    from reconciler.loading import dump, load
+    from reconciler.loading import load
 
     found = override.editable(machine)
     doc = load(found.path, found.text)
     current = desired_from(doc)
     _version_one(doc.data, found.path)
-    tree = _quoted_tree(found.text)
+    yaml, tree = _round_trip(found.text)
     change(tree, current)
-    text = dump(tree)
+    out = io.StringIO()
+    yaml.dump(tree, out)
+    text = out.getvalue()
     desired = desired_from(load(found.path, text))
     return _apply(machine, found, text, desired, by=by, options=options, report=report)
 
@@ -409,14 +412,20 @@ def _put_tail(node: Any, key: Any, rest: str) -> None:
         slot[at] = CommentToken("\n" + rest, CommentMark(0), None)
 
 
-def _quoted_tree(text: str) -> Any:
-    """The round-trip tree of a text `loading.load` already accepted, its scalars'
-    quotes kept (`loading` drops them: its trees are for positions, not for writing back)."""
+def _round_trip(text: str) -> tuple[Any, Any]:
+    """A writer in the file's own style, and the round-trip tree of a text `loading.load`
+    already accepted: quotes kept, a list's dash indented as the file does, no line
+    re-wrapped (as `lpam pin` writes: workflow/pin.py)."""
     from ruamel.yaml import YAML
 
-    yaml = YAML(typ="rt")
+    from reconciler.workflow.pin import _sequence_offset
+
+    yaml = YAML()
     yaml.preserve_quotes = True
-    return yaml.load(text)
+    yaml.width = 4096
+    offset = _sequence_offset(text)
+    yaml.indent(mapping=2, sequence=offset + 2, offset=offset)
+    return yaml, yaml.load(text)
 
 
 def _listed(current: DesiredState, repository: str) -> int | None:

@@ -65,9 +65,9 @@ version: 1
 mirrors:
   "https://github.com/": "git://127.0.0.1:{port}/"
 repositories:
-  # the default apps
-  - repo: fleet/apps
-    ref: main   # follow the branch
+# the default apps, listed the way this file's author likes: dashes at the key's column
+- repo: fleet/apps
+  ref: main   # follow the branch, whatever moves on it: a comment no writer may re-wrap
 app:
   name: ticker
 # end of file
@@ -252,7 +252,7 @@ def test_a_repository_added_and_removed_keeps_the_files_comments(shim: Shim) -> 
     out = shim.ok("-g", "extra/tools", "-b", "dev")
     assert "Repository extra/tools added" in out
     text = shim.path.read_text()
-    assert "  - repo: extra/tools\n    ref: dev\n" in text
+    assert "\n- repo: extra/tools\n  ref: dev\napp:\n" in text
     assert text.startswith("# The car's apps") and "# the default apps" in text
     assert "# follow the branch" in text and "# end of file" in text
     assert "version: 1\n" in text
