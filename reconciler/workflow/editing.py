@@ -1,0 +1,451 @@
+"""Edits of the default desired state, applied at once: what the field frontends change.
+
+The phone (Privzone over Bluetooth) and the `libpanda-app-manager` command do not act on
+the machine themselves: each of their inputs becomes an edit of the desired state lpam
+applies by default (`<root>/etc/lpam/desired-state.yaml`), followed by the very apply
+`lpam apply` runs. So a rule — the lock, the gates, validation, the health check and its
+rollback — holds for them because it is written once, in the workflow, never in a caller.
+
+An edit is made on ruamel.yaml's round-trip tree (comments, key order and `version:` are
+kept), validated exactly as a hand edit would be, and written only once the apply's plan
+was made, under the apply lock (`confirm`): a refusal at plan time (an unknown app, a
+branch the repository lacks, an unreachable server) leaves the file byte-identical and the
+app running. If the cutover then fails (health check rolled back, gates closed, a stop
+requested), the old bytes are written back: the file says what runs. Values from a phone
+are hostile until checked: option-like, control characters, whitespace and `..` are
+refused before any lock is taken, so a bad value never waits on another apply.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+from collections.abc import Callable, Mapping, MutableMapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from reconciler.errors import LpamError
+from reconciler.workflow import override
+from reconciler.workflow.applying import Applied, ApplyOptions, apply, apply_file
+from reconciler.workflow.events import Report
+from reconciler.workflow.machine import Machine
+
+if TYPE_CHECKING:
+    from schemas.desired import DesiredState
+    from schemas.plan import Plan
+
+GITHUB = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9-]{0,38})/[A-Za-z0-9._-]{1,100}$")
+"""GitHub's alphabet: an owner is letters, digits and '-' (39 at most), a repository
+letters, digits, '.', '_' and '-'."""
+UNCHANGED = "nothing was changed"
+
+Change = Callable[[Any, "DesiredState"], None]
+"""Changes the round-trip tree in place; it is given the current desired state to look
+things up in, and raises LpamError to refuse."""
+
+
+@dataclass(frozen=True)
+class Edited:
+    """How an edit ended: whether the file changed, and the apply that followed it."""
+
+    changed: bool
+    applied: Applied
+
+
+def checked(what: str, value: str, rule: Callable[[str], str] | None = None) -> str:
+    """`value` as a frontend gave it, refused unless it is a plain word: no leading '-'
+    (it would read as an option to a command), no whitespace or control character, no
+    '..'; then `rule` (the schema's own check for that kind of value)."""
+    from reconciler.text import escaped, shorten
+
+    shown = shorten(escaped(value), 80)
+    if not value:
+        raise LpamError(f"the {what} is empty", hint=UNCHANGED)
+    if value.startswith("-"):
+        raise LpamError(f"the {what} {shown!r} starts with '-' (it would read as an option)",
+                        hint=UNCHANGED)
+    if any(c.isspace() or not c.isprintable() for c in value):
+        raise LpamError(f"the {what} {shown!r} contains whitespace or a control character",
+                        hint=UNCHANGED)
+    if ".." in value:
+        raise LpamError(f"the {what} {shown!r} contains '..'", hint=UNCHANGED)
+    if rule is not None:
+        try:
+            rule(value)
+        except ValueError as exc:
+            raise LpamError(f"the {what} {shown!r}: {exc}", hint=UNCHANGED) from None
+    return value
+
+
+def github_repository(value: str) -> str:
+    """`owner/repo` in GitHub's alphabet (schemas.names checks the rest)."""
+    from schemas.names import check_owner_repo
+
+    if not GITHUB.match(value):
+        raise ValueError("expected a GitHub repository as owner/repo (letters, digits, "
+                         "'-' in the owner; '.', '_', '-' too in the repository)")
+    return check_owner_repo(value)
+
+
+def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOptions,
+               report: Report) -> Edited:
+    """`app:` becomes `{name: NAME}` (a fresh entry: another app's params are not its
+    own), or `null` for no app; the same app again changes nothing in the file."""
+    from schemas.names import check_app_name
+
+    if name is not None:
+        checked("app name", name, check_app_name)
+
+    def change(tree: Any, current: DesiredState) -> None:
+        entry = tree.get("app")
+        if name is None:
+            if current.app is not None:
+                _replace(tree, "app", None)
+        elif current.app is not None and current.app.name == name:
+            return
+        elif isinstance(entry, MutableMapping):  # the same entry, its other keys dropped: its
+            _replace(entry, "name", name)  # comments stay where they were
+            for key in [k for k in entry if k != "name"]:
+                _drop(entry, key)
+        else:
+            _replace(tree, "app", name if isinstance(entry, str) else _mapping({"name": name}))
+
+    return edit(machine, change, by=by, options=options, report=report)
+
+
+def add_repository(machine: Machine, repository: str, branch: str | None, *, by: str,
+                   options: ApplyOptions, report: Report) -> Edited:
+    """The GitHub repository `owner/repo` at `branch` (None: its default branch) is added
+    as `repo:`/`ref:`; one already listed keeps its entry, its ref changed if need be. A
+    branch the repository lacks is refused by the plan, before the file is written."""
+    from schemas.names import check_ref
+
+    checked("repository", repository, github_repository)
+    if branch is not None:
+        checked("branch", branch, check_ref)
+
+    def change(tree: Any, current: DesiredState) -> None:
+        index = _listed(current, repository)
+        if index is None:
+            entry = {"repo": repository} if branch is None else \
+                {"repo": repository, "ref": branch}
+            if tree.get("repositories") is None:
+                _replace(tree, "repositories", _sequence())
+            _add(tree["repositories"], None, _mapping(entry))
+            return
+        if current.repositories[index].ref == branch:
+            return
+        item = tree["repositories"][index]
+        if branch is None:
+            _drop(item, "ref")
+        elif "ref" in item:
+            item["ref"] = branch
+        else:
+            _add(item, "ref", branch)
+
+    return edit(machine, change, by=by, options=options, report=report)
+
+
+def remove_repository(machine: Machine, repository: str, *, by: str, options: ApplyOptions,
+                      report: Report) -> Edited:
+    """The repository leaves the desired state (lpam removes its checkout). Refused when
+    it is not listed, or when the installed or the desired app comes from it: the app
+    would lose its source mid-flight; switch apps first."""
+    from reconciler.state import read_record
+
+    checked("repository", repository)
+    installed = read_record(machine.layout).app
+
+    def change(tree: Any, current: DesiredState) -> None:
+        index = _listed(current, repository)
+        if index is None:
+            listed = ", ".join(s.key for s in current.repositories) or "none"
+            raise LpamError(f"repository {repository} is not in the desired state "
+                            f"(it lists: {listed})", hint=UNCHANGED)
+        spec = current.repositories[index]
+        names = {spec.key, spec.repo, spec.url, spec.name} - {None}
+        if installed is not None and installed.repository in names:
+            raise LpamError(f"the installed app {installed.name} comes from {repository}",
+                            hint=f"enable another app (or none) first; {UNCHANGED}")
+        wanted = current.app
+        if wanted is not None and wanted.repository in names:
+            raise LpamError(f"the desired app {wanted.name} comes from {repository}",
+                            hint=f"enable another app (or none) first; {UNCHANGED}")
+        _drop(tree["repositories"], index)
+
+    return edit(machine, change, by=by, options=options, report=report)
+
+
+def set_params(machine: Machine, app: str, params: Mapping[str, str], *, by: str,
+               options: ApplyOptions, report: Report) -> Edited:
+    """The desired app's `params:` replaced by `params` (the plan restarts the app with
+    them: no reinstall). Refused unless `app` is the desired app. Names are checked by
+    the schema (no PATH, LD_*…); values may hold spaces but no control character."""
+    from schemas.names import check_app_name, check_param_name
+
+    checked("app name", app, check_app_name)
+    for key, value in params.items():
+        checked("parameter name", key, check_param_name)
+        if any(not c.isprintable() for c in value):
+            raise LpamError(f"the value of parameter {key} contains a control character",
+                            hint=UNCHANGED)
+
+    def change(tree: Any, current: DesiredState) -> None:
+        if current.app is None or current.app.name != app:
+            wanted = "no app" if current.app is None else f"app {current.app.name}"
+            raise LpamError(f"{app} is not the desired app (the desired state names {wanted})",
+                            hint=f"enable it first; {UNCHANGED}")
+        if dict(current.app.params) == dict(params):
+            return
+        if not isinstance(tree.get("app"), MutableMapping):  # the `app: NAME` shorthand
+            _replace(tree, "app", _mapping({"name": app}))
+        entry = tree["app"]
+        if "params" in entry and not params:
+            _drop(entry, "params")
+        elif "params" in entry:
+            _replace(entry, "params", _mapping(dict(params)))
+        elif params:
+            _add(entry, "params", _mapping(dict(params)))
+
+    return edit(machine, change, by=by, options=options, report=report)
+
+
+def update(machine: Machine, *, options: ApplyOptions, report: Report) -> Applied:
+    """LPAM's `-p`, the phone's `app_update`: the default desired state applied with
+    fetching, so branches move to their tips. Under a local override it is what
+    `lpam apply --release` does (workflow/applying.py): the override ends, and the car
+    applies its fleet's file again."""
+    from dataclasses import replace
+
+    path = machine.layout.desired_state
+    if override.active(machine) is not None:
+        options = replace(options, release=True)
+    elif not path.exists() and override.follows_fleet(machine):
+        raise LpamError("this car follows its fleet's desired state and has no local one "
+                        "to update", hint="`lpam sync` fetches and applies the fleet's file; "
+                        f"{UNCHANGED}")
+    return apply_file(machine, path, options=options, confirm=lambda plan: True,
+                      report=report)
+
+
+def edit(machine: Machine, change: Change, *, by: str, options: ApplyOptions,
+         report: Report) -> Edited:
+    """Load the editable desired state, `change` it, validate the result as a hand edit
+    is validated, and apply it (see `_apply`). Everything up to the apply happens before
+    the lock: a refused edit never waits."""
+    from reconciler.documents import desired_from
+    from reconciler.loading import load
+
+    found = override.editable(machine)
+    doc = load(found.path, found.text)
+    current = desired_from(doc)
+    _version_one(doc.data, found.path)
+    yaml, tree = _round_trip(found.text)
+    change(tree, current)
+    out = io.StringIO()
+    yaml.dump(tree, out)
+    text = out.getvalue()
+    desired = desired_from(load(found.path, text))
+    return _apply(machine, found, text, desired, by=by, options=options, report=report)
+
+
+def _apply(machine: Machine, found: override.Editable, text: str, desired: DesiredState, *,
+           by: str, options: ApplyOptions, report: Report) -> Edited:
+    """The edited text is written when the plan made under the lock is confirmed, and
+    the old one put back if the execution fails; with no step to run, it is written after
+    (nothing on the machine changes), under the lock again. Either way only if the file
+    still holds what the edit began from: two frontends editing at once must not undo
+    each other's change (the second is refused, to be made again on the new text)."""
+    from reconciler.execution.lock import apply_lock
+
+    old = None if found.seeded else found.text.encode("utf-8")
+    new = text.encode("utf-8")
+    written: list[bool] = []
+
+    def confirm(plan: Plan) -> bool:
+        _unchanged(found.path, old)
+        _put(found.path, new, old)
+        written.append(True)
+        return True
+
+    machine.warm_network()
+    try:
+        done = apply(machine, found.path, desired, options=options, confirm=confirm,
+                     report=report)
+    except LpamError:
+        if written:
+            _put(found.path, old, new)
+        raise
+    if not written:
+        with apply_lock(machine.layout, timeout=options.lock_wait()):
+            _unchanged(found.path, old)
+            _put(found.path, new, old)
+    override.begin(machine, by=by, seeded=found.seeded)
+    return Edited(changed=new != old, applied=done)
+
+
+def _unchanged(path: Path, old: bytes | None) -> None:
+    """Refuse to write over a desired state that changed since the edit read it."""
+    from reconciler.reading import read_bounded
+
+    try:
+        now = read_bounded(path, limit=len(old or b"") + 1, what="the desired state",
+                           hint="")
+    except FileNotFoundError:
+        now = None
+    except LpamError:  # larger than it was: changed
+        now = b""
+    if now != old:
+        raise LpamError("the desired state changed while this edit waited for the lock "
+                        "(another edit, or a hand edit)",
+                        hint=f"make the edit again on the new desired state; {UNCHANGED}")
+
+
+def _put(path: Path, data: bytes | None, before: bytes | None) -> None:
+    """`path` holds `data` (None: no file), written atomically with the file's mode kept;
+    nothing is written when it already holds it."""
+    from reconciler.atomic import fsync_dir, write_atomic
+
+    if data == before:
+        return
+    if data is None:
+        path.unlink(missing_ok=True)
+        fsync_dir(path.parent)
+        return
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+    write_atomic(path, data, mode=mode)
+
+
+def _version_one(data: Any, path: Path) -> None:
+    """Edits are made in the current format's terms; an older document (LPAM's manifest,
+    version 0.0) is refused rather than edited into a mixture of two formats."""
+    from reconciler.errors import ConfigError
+    from schemas.desired import CURRENT_VERSION
+
+    if not isinstance(data, dict) or data.get("version") != CURRENT_VERSION:
+        raise ConfigError(f"only a version {CURRENT_VERSION} desired state can be edited "
+                          "here", path=path, line=1, column=1,
+                          hint="convert it with `lpam import-lpam -o FILE` and review it; "
+                          f"{UNCHANGED}")
+
+
+def _replace(tree: Any, key: str, value: Any) -> None:
+    """`tree[key] = value`, the comment lines that followed the old value kept after the
+    new one (ruamel keeps them with the last scalar above them: see `_cut_tail`)."""
+    rest = _cut_tail(tree, key) if key in tree else None
+    tree[key] = value
+    if rest:
+        _put_tail(tree, key, rest)
+
+
+def _add(node: Any, key: Any, value: Any) -> None:
+    """A new last key of a mapping (`key`) or item of a sequence (`key` None), the comment
+    lines that followed the old last one moved after it."""
+    last = _last(node)
+    rest = _cut_tail(node, last) if last is not None else None
+    if key is None:
+        node.append(value)
+        key = len(node) - 1
+    else:
+        node[key] = value
+    if rest:
+        _put_tail(node, key, rest)
+
+
+def _drop(node: Any, key: Any) -> None:
+    """`del node[key]`; were it the last, the comment lines after it follow the new last."""
+    rest = _cut_tail(node, key) if key == _last(node) else None
+    del node[key]
+    last = _last(node)
+    if rest and last is not None:
+        _put_tail(node, last, rest)
+
+
+def _last(node: Any) -> Any:
+    if not node:
+        return None
+    return list(node)[-1] if isinstance(node, Mapping) else len(node) - 1
+
+
+def _leaf(node: Any, key: Any) -> tuple[Any, Any]:
+    """The container and key of the last scalar under `node[key]`."""
+    while True:
+        value = node[key]
+        last = _last(value) if isinstance(value, (Mapping, list)) else None
+        if last is None or not hasattr(value, "ca"):
+            return node, key
+        node, key = value, last
+
+
+def _cut_tail(node: Any, key: Any) -> str | None:
+    """Take the whole comment lines that follow `node[key]` (kept by ruamel in the token
+    after its last scalar, behind that line's own end-of-line comment, which stays)."""
+    container, leaf = _leaf(node, key)
+    slot = container.ca.items.get(leaf)
+    at = 2 if isinstance(container, Mapping) else 0
+    token = slot[at] if slot is not None and len(slot) > at else None
+    if token is None:
+        return None
+    own, _, rest = str(token.value).partition("\n")
+    if not rest.strip():
+        return None
+    if own.strip():
+        token.value = own + "\n"
+    else:
+        slot[at] = None
+    return rest
+
+
+def _put_tail(node: Any, key: Any, rest: str) -> None:
+    from ruamel.yaml.error import CommentMark
+    from ruamel.yaml.tokens import CommentToken
+
+    container, leaf = _leaf(node, key)
+    mapping = isinstance(container, Mapping)
+    slot = container.ca.items.setdefault(leaf, [None, None, None, None] if mapping
+                                         else [None, None])
+    at = 2 if mapping else 0
+    if slot[at] is not None:  # its own end-of-line comment comes first
+        slot[at].value = str(slot[at].value).rstrip("\n") + "\n" + rest
+    else:
+        slot[at] = CommentToken("\n" + rest, CommentMark(0), None)
+
+
+def _round_trip(text: str) -> tuple[Any, Any]:
+    """A writer in the file's own style, and the round-trip tree of a text `loading.load`
+    already accepted: quotes kept, a list's dash indented as the file does, no line
+    re-wrapped (as `lpam pin` writes: workflow/pin.py)."""
+    from ruamel.yaml import YAML
+
+    from reconciler.workflow.pin import _sequence_offset
+
+    yaml = YAML()
+    yaml.preserve_quotes = True
+    yaml.width = 4096
+    offset = _sequence_offset(text)
+    yaml.indent(mapping=2, sequence=offset + 2, offset=offset)
+    return yaml, yaml.load(text)
+
+
+def _listed(current: DesiredState, repository: str) -> int | None:
+    """The index of `repository` among the desired repositories: its key, `repo:`,
+    `url:` or `name:`; a GitHub name matches whatever its letters' case."""
+    wanted = repository.casefold()
+    for index, spec in enumerate(current.repositories):
+        names = {spec.key, spec.repo, spec.url, spec.name} - {None}
+        if any(str(n).casefold() == wanted for n in names):
+            return index
+    return None
+
+
+def _mapping(items: Mapping[str, Any]) -> Any:
+    from ruamel.yaml.comments import CommentedMap
+
+    return CommentedMap(items)
+
+
+def _sequence() -> Any:
+    from ruamel.yaml.comments import CommentedSeq
+
+    return CommentedSeq()
