@@ -19,13 +19,12 @@ import json
 import os
 import signal
 import sys
-import traceback
 from collections.abc import Callable, Sequence
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from reconciler import __version__
+from reconciler.console import Terminal, debug_log, now, terminate
 from reconciler.errors import LpamError, Terminated
 from reconciler.layout import KEEP_GENERATIONS, Layout
 from reconciler.text import printable
@@ -50,10 +49,6 @@ OPERATOR_ACTIONS = (
 )
 """schemas.operator.OperatorAction's values (spelled out for the same reason), each with
 its help."""
-
-
-def now() -> datetime:
-    return datetime.now(timezone.utc)
 
 
 def _at_least_one(text: str) -> int:
@@ -193,6 +188,13 @@ def _sync_agent(new: New) -> None:
     agent.add_argument("--once", action="store_true", help="one pass, then exit with its code")
     _add(agent, "network-timeout", "services", "script-timeout", "lock-timeout")
 
+    ble = new("ble", "serve the field's phone app (Privzone) over Bluetooth LE until stopped")
+    ble.add_argument("--adapter", default="/org/bluez/hci0",
+                     help="the BlueZ adapter's object path (default: /org/bluez/hci0)")
+    ble.add_argument("--bus", metavar="ADDRESS", help="the system D-Bus's address (default: "
+                     "$DBUS_SYSTEM_BUS_ADDRESS, else the system's)")
+    _add(ble, "network-timeout", "services")
+
 
 def _gates_install_bundle(new: New) -> None:
     gates = new("gates", "the update gates now: speed, locks, time window")
@@ -200,6 +202,8 @@ def _gates_install_bundle(new: New) -> None:
 
     _add(new("install-agent", "install the systemd units that run the agent on this car"),
          "config", "services")
+    _add(new("install-ble", "install the systemd unit that runs `lpam ble` on this car "
+             "(it replaces bluezone's unit)"), "services")
 
     bundle = new("bundle", "offline bundles of the desired state and what it pins")
     bundle.add_argument("action", choices=("create",))
@@ -261,13 +265,9 @@ def entry() -> int:
         gc.freeze()
 
 
-def _terminate(signum: int, frame: object) -> None:
-    raise Terminated
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    signal.signal(signal.SIGTERM, _terminate)
+    signal.signal(signal.SIGTERM, terminate)
     layout = _layout(args)
     try:
         return int(COMMANDS[args.command](args, layout))
@@ -287,7 +287,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print("interrupted: nothing was changed", file=sys.stderr)
         return 143 if isinstance(exc, Terminated) else 130
     except Exception:  # a bug: keep the traceback away from the user, but keep it
-        log = _debug_log(layout)
+        log = debug_log(layout)
         print(f"error: internal error in lpam {__version__}; details in {log}", file=sys.stderr)
         return EXIT_ERROR
 
@@ -316,24 +316,6 @@ def again(args: argparse.Namespace) -> str:
     return shlex.join(parts)
 
 
-def _debug_log(layout: Layout) -> str:
-    """Append the traceback to lpam's debug log, never through a planted link."""
-    from reconciler.reading import open_append
-
-    try:
-        fd = open_append(layout.debug_log)
-    except (OSError, LpamError):
-        return "(the debug log could not be written)"
-    try:
-        text = f"--- {now().isoformat()} lpam {__version__} {sys.argv}\n" + traceback.format_exc()
-        os.write(fd, text.encode("utf-8", "replace"))
-    except OSError:
-        return "(the debug log could not be written)"
-    finally:
-        os.close(fd)
-    return str(layout.debug_log)
-
-
 def _desired_path(args: argparse.Namespace, layout: Layout) -> Path:
     return Path(args.file) if args.file else layout.desired_state
 
@@ -343,52 +325,6 @@ def _machine(args: argparse.Namespace, layout: Layout) -> Machine:
 
     return Machine.at(layout, services=getattr(args, "services", None),
                       network_timeout=getattr(args, "network_timeout", 60.0))
-
-
-class Terminal:
-    """Where the use cases' events go in a terminal: notes to stderr, progress to stdout,
-    and of a long command's output (a build, an install) its command line, then at most
-    every few seconds how long it has run and its latest line."""
-
-    EVERY = 5.0
-
-    def __init__(self) -> None:
-        import time
-
-        self._clock = time.monotonic
-        self._started = self._shown = self._clock()
-
-    def __call__(self, event: Event) -> None:
-        from reconciler.planning.render import render
-        from reconciler.workflow.events import Note, Output, Planned, Progress
-
-        if isinstance(event, Note):
-            print(f"note: {event.text}", file=sys.stderr)
-        elif isinstance(event, Progress):
-            print(event.text, flush=True)
-        elif isinstance(event, Planned):
-            print(render(event.plan))
-        elif isinstance(event, Output):
-            self._output(event.line)
-
-    def _output(self, line: str) -> None:
-        now_ = self._clock()
-        if line.startswith("$ "):  # a new command: its clock starts
-            self._started = self._shown = now_
-            print(f"      {_fit(line, 100)}", flush=True)
-        elif now_ - self._shown >= self.EVERY:
-            self._shown = now_
-            print(f"      … {now_ - self._started:.0f} s: {_fit(line, 80)}", flush=True)
-
-
-def _fit(line: str, width: int) -> str:
-    """`line` in at most `width` printable characters, cut in the middle: the end of a
-    command line (the path, the package) is the part that says most."""
-    text = printable(line)
-    if len(text) <= width:
-        return text
-    head = width * 2 // 5
-    return f"{text[:head]} … {text[len(text) - (width - head - 3):]}"
 
 
 def _options(args: argparse.Namespace, **more: Any) -> ApplyOptions:
@@ -578,6 +514,28 @@ def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
     return agent.run(once=args.once)
 
 
+def cmd_ble(args: argparse.Namespace, layout: Layout) -> int:
+    """Logs to stdout, a line each (systemd's journal adds the time); 0 when stopped."""
+    from reconciler.ble.serve import serve
+
+    def log(line: str) -> None:
+        print(printable(line), flush=True)
+
+    return serve(_machine(args, layout), bus_address=args.bus, adapter=args.adapter, log=log,
+                 bug=lambda: debug_log(layout))
+
+
+def cmd_install_ble(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.agent import install_ble
+
+    command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
+    for path in install_ble(_machine(args, layout), command, report=Terminal()):
+        print(f"Wrote {path}")
+    print("The Bluetooth service answers the phone app (Privzone) as bluezone did; "
+          "bluezone's own unit is stopped while it runs (Conflicts=).")
+    return EXIT_OK
+
+
 def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
     """The units run this very lpam (its interpreter, absolute) on this root; agent.yaml
     must be valid first, so a car is never set to follow a source it cannot read."""
@@ -692,6 +650,8 @@ COMMANDS = {
     "sync": cmd_sync,
     "agent": cmd_agent,
     "install-agent": cmd_install_agent,
+    "ble": cmd_ble,
+    "install-ble": cmd_install_ble,
     "gates": cmd_gates,
     "pin": cmd_pin,
     "bundle": cmd_bundle,

@@ -166,6 +166,11 @@ class Layout:
         return self.var / "status.json"
 
     @property
+    def thermal_zone(self) -> Path:
+        """The CPU's temperature in millidegrees Celsius, as the kernel gives it."""
+        return self.root / "sys" / "class" / "thermal" / "thermal_zone0" / "temp"
+
+    @property
     def override(self) -> Path:
         """A local edit that overrides the fleet's desired state (schemas/override.py)."""
         return self.var / "override.json"

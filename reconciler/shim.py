@@ -214,7 +214,7 @@ def _options() -> ApplyOptions:
 
 
 def _report() -> Report:
-    from reconciler.cli import Terminal
+    from reconciler.console import Terminal
 
     return Terminal()
 
@@ -240,7 +240,7 @@ def one_line(exc: LpamError) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from reconciler.cli import _debug_log, _terminate
+    from reconciler.console import debug_log, terminate
     from reconciler.layout import Layout
 
     try:
@@ -251,7 +251,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if command.help:
         print(USAGE)
         return EXIT_OK
-    signal.signal(signal.SIGTERM, _terminate)
+    signal.signal(signal.SIGTERM, terminate)
     try:
         run(_machine(), command)
     except LpamError as exc:
@@ -266,7 +266,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 143 if isinstance(exc, Terminated) else 130
     except Exception:  # a bug: the traceback goes to lpam's debug log, never to the user
         root = os.environ.get("LPAM_ROOT") or "/"
-        _fail(f"internal error; details in {_debug_log(Layout(Path(root).resolve()))}")
+        _fail(f"internal error; details in {debug_log(Layout(Path(root).resolve()))}")
         return 1
     return EXIT_OK
 

@@ -101,13 +101,25 @@ def install_agent(machine: Machine, command: list[str], *, config_file: Path | N
     valid first, so a car is never set to follow a source it cannot read. Returns the unit
     files written and the settings they follow."""
     from reconciler.adapters.services.agentunits import agent_units
+
+    config = settings(machine.layout, config_file)
+    other = str(config_file.resolve()) if config_file is not None else None
+    return _install_units(machine, agent_units(command, other), report), config
+
+
+def install_ble(machine: Machine, command: list[str], *, report: Report) -> list[str]:
+    """Write the unit of `lpam ble` (adapters/services/agentunits.py); where systemd runs,
+    enable and start it. Returns the unit file written."""
+    from reconciler.adapters.services.agentunits import ble_unit
+
+    return _install_units(machine, ble_unit(command), report)
+
+
+def _install_units(machine: Machine, units: dict[str, str], report: Report) -> list[str]:
     from reconciler.adapters.services.systemd import SystemdServices
     from reconciler.atomic import write_atomic
     from reconciler.workflow.events import Note
 
-    config = settings(machine.layout, config_file)
-    other = str(config_file.resolve()) if config_file is not None else None
-    units = agent_units(command, other)
     written = []
     for name, text in units.items():
         path = machine.layout.systemd_units / f"{name}.service"
@@ -118,5 +130,5 @@ def install_agent(machine: Machine, command: list[str], *, config_file: Path | N
         written.append(str(path))
     if not isinstance(machine.services, SystemdServices):
         report(Note("systemd does not run the apps here: the units were written, not "
-                    "enabled (`lpam agent` can run in a terminal instead)"))
-    return written, config
+                    "enabled (run the command in a terminal instead)"))
+    return written

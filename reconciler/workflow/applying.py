@@ -76,9 +76,9 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
                             hint="fetch them first (`lpam sync --fetch-only` where there is "
                             "network, or a bundle); nothing was changed")
         if not made.steps and not finishes_rollback(made):
-            return Applied(0, _standing(machine))
+            return Applied(0, standing(machine))
         if not confirm(made):
-            return Applied(0, _standing(machine), cancelled=True)
+            return Applied(0, standing(machine), cancelled=True)
         base = base_dir if base_dir is not None else path.resolve().parent
         return execute_plan(machine, store, made, lock, options=options, report=report,
                             gate=machine.gate_for(desired, base),
@@ -171,10 +171,10 @@ def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
                                resume=options.resume, desired=desired)
     execute(made, ctx, progress=lambda text: report(Progress(text)),
             keep=options.keep_generations)
-    return Applied(len(made.steps), _standing(machine, ctx.record.app), log)
+    return Applied(len(made.steps), standing(machine, ctx.record.app), log)
 
 
-def _standing(machine: Machine, app: object = None) -> str:
+def standing(machine: Machine, app: object = None) -> str:
     """The installed app as it stands, its unit asked of the service manager."""
     from reconciler.state import read_record
     from schemas.record import AppRecord

@@ -215,18 +215,31 @@ def update(machine: Machine, *, options: ApplyOptions, report: Report) -> Applie
     """LPAM's `-p`, the phone's `app_update`: the default desired state applied with
     fetching, so branches move to their tips. Under a local override it is what
     `lpam apply --release` does (workflow/applying.py): the override ends, and the car
-    applies its fleet's file again."""
+    applies its fleet's file again. A fleet car with no local file updates as the agent
+    does: one sync pass (fetch the fleet's repository, apply this car's file)."""
     from dataclasses import replace
 
     path = machine.layout.desired_state
     if override.active(machine) is not None:
         options = replace(options, release=True)
     elif not path.exists() and override.follows_fleet(machine):
-        raise LpamError("this car follows its fleet's desired state and has no local one "
-                        "to update", hint="`lpam sync` fetches and applies the fleet's file; "
-                        f"{UNCHANGED}")
+        return _sync_pass(machine, options, report)
     return apply_file(machine, path, options=options, confirm=lambda plan: True,
                       report=report)
+
+
+def _sync_pass(machine: Machine, options: ApplyOptions, report: Report) -> Applied:
+    """One pass of the agent (workflow/agent.py), its failure raised as the error it
+    recorded, so that the phone and the shim say it and exit non-zero."""
+    from reconciler.workflow.agent import one_pass, settings
+    from reconciler.workflow.applying import standing
+
+    done = one_pass(machine, settings(machine.layout, None), options=options, wait=None,
+                    report=report)
+    if done.code != 0:
+        raise LpamError(f"the fleet's revision {(done.revision or 'none')[:12]}: "
+                        f"{done.result}: {done.reason or 'no reason given'}", hint=done.hint)
+    return Applied(1 if done.result == "applied" else 0, standing(machine))
 
 
 def edit(machine: Machine, change: Change, *, by: str, options: ApplyOptions,

@@ -83,9 +83,9 @@ def _seed(machine: Machine) -> str | None:
         return None
     doc = load(found.label, data.decode("utf-8", "replace"))
     _anchor(doc.tree, found)
-    header = (f"# Made on this car from the fleet's {name} at {revision[:12]} when it was "
-              "first edited here (a local override).\n# `lpam apply --release` or the phone's "
-              "update ends the override and sets this file aside.\n")
+    header = (f"Made on this car from the fleet's {name} at {revision[:12]} when it was "
+              "first edited here (a local override).\n`lpam apply --release` or the phone's "
+              "update ends the override and sets this file aside.")
     return dump(doc.tree, header=header)
 
 

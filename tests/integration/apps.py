@@ -99,3 +99,33 @@ def desired(url: str, app: str | None, ref: str | None = None, **params: str) ->
             lines.append("  params:")
             lines += [f'    {k}: "{v}"' for k, v in params.items()]
     return "\n".join(lines) + "\n"
+
+
+# A car as the field frontends' tests use it (libpanda-app-manager, lpam ble): a desired
+# state of its own whose GitHub repositories come from the test's git daemon, and an app
+# process that records its starts.
+TICKER = """\
+import os, time
+with open(os.path.join(os.environ["LPAM_ROOT"], "starts"), "a") as f:
+    f.write(f"{os.environ['LPAM_APP']} {os.getpid()}\\n")
+while True:
+    time.sleep(0.2)
+"""
+
+
+def field_state(port: int) -> str:
+    """`fleet/apps` at main (GitHub shorthand sent to the daemon on `port`), app ticker;
+    written in a style of its own, whose comments and layout an edit must keep."""
+    return f"""\
+# The car's apps; edited by libpanda-app-manager and the phone.
+version: 1
+mirrors:
+  "https://github.com/": "git://127.0.0.1:{port}/"
+repositories:
+# the default apps, listed the way this file's author likes: dashes at the key's column
+- repo: fleet/apps
+  ref: main   # follow the branch, whatever moves on it: a comment no writer may re-wrap
+app:
+  name: ticker
+# end of file
+"""

@@ -27,15 +27,8 @@ from reconciler.layout import Layout
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.machine import Machine
 from tests.gitserver import GitDaemon, RepoBuilder
-from tests.integration.apps import Lpam
+from tests.integration.apps import TICKER, Lpam, field_state
 
-TICKER = """\
-import os, time
-with open(os.path.join(os.environ["LPAM_ROOT"], "starts"), "a") as f:
-    f.write(f"{os.environ['LPAM_APP']} {os.getpid()}\\n")
-while True:
-    time.sleep(0.2)
-"""
 CATALOG = """\
 apps:
   - name: ticker
@@ -56,22 +49,6 @@ apps:
     health: {settle_seconds: 0.5}
 """
 HEADER = "Repository\tBranch\tApp\tService\tEnabled\tRunning\tDescription"
-
-
-def state(port: int) -> str:
-    return f"""\
-# The car's apps; edited by libpanda-app-manager and the phone.
-version: 1
-mirrors:
-  "https://github.com/": "git://127.0.0.1:{port}/"
-repositories:
-# the default apps, listed the way this file's author likes: dashes at the key's column
-- repo: fleet/apps
-  ref: main   # follow the branch, whatever moves on it: a comment no writer may re-wrap
-app:
-  name: ticker
-# end of file
-"""
 
 
 class Shim:
@@ -132,7 +109,7 @@ def shim(tmp_path: Path, git_daemon: GitDaemon, make_repo: Callable[[str], RepoB
     tools.push()
     runner = Shim(tmp_path / "root")
     runner.path.parent.mkdir(parents=True)
-    runner.path.write_text(state(git_daemon.port))
+    runner.path.write_text(field_state(git_daemon.port))
     try:
         assert runner.lpam("apply", "--yes").returncode == 0
         yield runner

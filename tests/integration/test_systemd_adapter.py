@@ -460,6 +460,27 @@ def test_install_agent_writes_verified_units_then_enables_and_starts_them(
         assert ["systemctl", "start", "--", name] in calls
 
 
+def test_install_ble_writes_a_verified_unit_that_replaces_bluezone(
+    fake: Fake, tmp_path: Path,
+) -> None:
+    """`lpam install-ble`: the unit verifies, runs `lpam ble` on this root after bluetoothd,
+    stops bluezone (the same GATT service cannot be served twice), and is enabled and
+    started through (the recording) systemctl."""
+    root = tmp_path / "root"
+    done = subprocess.run([sys.executable, "-m", "reconciler", "--root", str(root),
+                           "install-ble", "--services", "systemd"],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    unit = root / "etc/systemd/system/lpam-ble.service"
+    assert verify(unit) == ""
+    text = unit.read_text()
+    assert f'ExecStart="{sys.executable}" "-m" "reconciler" "--root" "{root}" "ble"' in text
+    assert "Conflicts=bluezone.service" in text and "After=bluetooth.service" in text
+    calls = [c for c in fake.calls() if c[0] == "systemctl"]
+    assert ["systemctl", "--no-reload", "enable", "--", "lpam-ble.service"] in calls
+    assert ["systemctl", "start", "--", "lpam-ble.service"] in calls
+
+
 def test_install_agent_refuses_a_bad_agent_yaml_and_writes_nothing(
     fake: Fake, tmp_path: Path,
 ) -> None:

@@ -12,6 +12,12 @@
   at the end of a trip is then applied at the next start, with no network.
 
 Together they replace libpanda's own update-on-boot and update-on-shutdown for apps.
+
+- `lpam-ble.service` runs `lpam ble`, the Bluetooth service of the phone app, after
+  bluetoothd. It serves the same GATT service and advertisement as libpanda's bluezone,
+  so the two cannot run together (the phone would find two services of one UUID):
+  `Conflicts=bluezone.service` stops bluezone while it runs. A stop lets a running request
+  reach a safe point, never cutting a cutover short (`TimeoutStopSec` as the agent's).
 """
 
 from __future__ import annotations
@@ -22,6 +28,8 @@ AGENT = "lpam-agent"
 FETCH = "lpam-agent-fetch"
 STOP_SECONDS = 900  # the longest cutover lpam lets finish before systemd kills it
 FETCH_SECONDS = 180
+BLE = "lpam-ble"
+BLUEZONE = "bluezone.service"
 
 
 def agent_units(lpam: list[str], config: str | None = None) -> dict[str, str]:
@@ -35,18 +43,7 @@ def agent_units(lpam: list[str], config: str | None = None) -> dict[str, str]:
         "Wants=network-online.target",
         "After=network-online.target",
         "",
-        "[Service]",
-        "Type=simple",
-        f"ExecStart={exec_line([*lpam, 'agent', *options])}",
-        "Restart=on-failure",
-        "RestartSec=30s",
-        "KillMode=mixed",
-        f"TimeoutStopSec={STOP_SECONDS}s",
-        "StandardOutput=journal",
-        "StandardError=journal",
-        "",
-        "[Install]",
-        "WantedBy=multi-user.target",
+        *_long_running([*lpam, "agent", *options], restart_seconds=30),
     ]
     fetch = [
         HEADER,
@@ -66,3 +63,37 @@ def agent_units(lpam: list[str], config: str | None = None) -> dict[str, str]:
         "WantedBy=multi-user.target",
     ]
     return {AGENT: "\n".join(agent) + "\n", FETCH: "\n".join(fetch) + "\n"}
+
+
+def ble_unit(lpam: list[str]) -> dict[str, str]:
+    """Unit name → file text of `lpam ble` (see the module docstring)."""
+    ble = [
+        HEADER,
+        "[Unit]",
+        "Description=lpam ble: the phone app's (Privzone) Bluetooth service",
+        "Wants=bluetooth.service",
+        "After=bluetooth.service dbus.service",
+        f"Conflicts={BLUEZONE}",
+        "",
+        *_long_running([*lpam, "ble"], restart_seconds=5),
+    ]
+    return {BLE: "\n".join(ble) + "\n"}
+
+
+def _long_running(command: list[str], *, restart_seconds: int) -> list[str]:
+    """The service and install sections of a long-running lpam command: restarted after a
+    failure, SIGTERM to lpam alone so that a cutover it runs is never cut short."""
+    return [
+        "[Service]",
+        "Type=simple",
+        f"ExecStart={exec_line(command)}",
+        "Restart=on-failure",
+        f"RestartSec={restart_seconds}s",
+        "KillMode=mixed",
+        f"TimeoutStopSec={STOP_SECONDS}s",
+        "StandardOutput=journal",
+        "StandardError=journal",
+        "",
+        "[Install]",
+        "WantedBy=multi-user.target",
+    ]
