@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from reconciler import roundtrip
 from reconciler.errors import LpamError
 from reconciler.workflow import override
 from reconciler.workflow.applying import Applied, ApplyOptions, apply, apply_file
@@ -101,15 +102,16 @@ def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOpt
         entry = tree.get("app")
         if name is None:
             if current.app is not None:
-                _replace(tree, "app", None)
+                roundtrip.replace(tree, "app", None)
         elif current.app is not None and current.app.name == name:
             return
         elif isinstance(entry, MutableMapping):  # the same entry, its other keys dropped: its
-            _replace(entry, "name", name)  # comments stay where they were
+            roundtrip.replace(entry, "name", name)  # comments stay where they were
             for key in [k for k in entry if k != "name"]:
-                _drop(entry, key)
+                roundtrip.drop(entry, key)
         else:
-            _replace(tree, "app", name if isinstance(entry, str) else _mapping({"name": name}))
+            roundtrip.replace(tree, "app", name if isinstance(entry, str)
+                              else roundtrip.mapping({"name": name}))
 
     return edit(machine, change, by=by, options=options, report=report)
 
@@ -131,18 +133,18 @@ def add_repository(machine: Machine, repository: str, branch: str | None, *, by:
             entry = {"repo": repository} if branch is None else \
                 {"repo": repository, "ref": branch}
             if tree.get("repositories") is None:
-                _replace(tree, "repositories", _sequence())
-            _add(tree["repositories"], None, _mapping(entry))
+                roundtrip.replace(tree, "repositories", roundtrip.sequence())
+            roundtrip.add(tree["repositories"], None, roundtrip.mapping(entry))
             return
         if current.repositories[index].ref == branch:
             return
         item = tree["repositories"][index]
         if branch is None:
-            _drop(item, "ref")
+            roundtrip.drop(item, "ref")
         elif "ref" in item:
             item["ref"] = branch
         else:
-            _add(item, "ref", branch)
+            roundtrip.add(item, "ref", branch)
 
     return edit(machine, change, by=by, options=options, report=report)
 
@@ -172,7 +174,7 @@ def remove_repository(machine: Machine, repository: str, *, by: str, options: Ap
         if wanted is not None and wanted.repository in names:
             raise LpamError(f"the desired app {wanted.name} comes from {repository}",
                             hint=f"enable another app (or none) first; {UNCHANGED}")
-        _drop(tree["repositories"], index)
+        roundtrip.drop(tree["repositories"], index)
 
     return edit(machine, change, by=by, options=options, report=report)
 
@@ -199,14 +201,14 @@ def set_params(machine: Machine, app: str, params: Mapping[str, str], *, by: str
         if dict(current.app.params) == dict(params):
             return
         if not isinstance(tree.get("app"), MutableMapping):  # the `app: NAME` shorthand
-            _replace(tree, "app", _mapping({"name": app}))
+            roundtrip.replace(tree, "app", roundtrip.mapping({"name": app}))
         entry = tree["app"]
         if "params" in entry and not params:
-            _drop(entry, "params")
+            roundtrip.drop(entry, "params")
         elif "params" in entry:
-            _replace(entry, "params", _mapping(dict(params)))
+            roundtrip.replace(entry, "params", roundtrip.mapping(dict(params)))
         elif params:
-            _add(entry, "params", _mapping(dict(params)))
+            roundtrip.add(entry, "params", roundtrip.mapping(dict(params)))
 
     return edit(machine, change, by=by, options=options, report=report)
 
@@ -254,7 +256,8 @@ def edit(machine: Machine, change: Change, *, by: str, options: ApplyOptions,
     doc = load(found.path, found.text)
     current = desired_from(doc)
     _version_one(doc.data, found.path)
-    yaml, tree = _round_trip(found.text)
+    yaml = roundtrip.writer(found.text)
+    tree = yaml.load(found.text)
     change(tree, current)
     out = io.StringIO()
     yaml.dump(tree, out)
@@ -343,104 +346,6 @@ def _version_one(data: Any, path: Path) -> None:
                           f"{UNCHANGED}")
 
 
-def _replace(tree: Any, key: str, value: Any) -> None:
-    """`tree[key] = value`, the comment lines that followed the old value kept after the
-    new one (ruamel keeps them with the last scalar above them: see `_cut_tail`)."""
-    rest = _cut_tail(tree, key) if key in tree else None
-    tree[key] = value
-    if rest:
-        _put_tail(tree, key, rest)
-
-
-def _add(node: Any, key: Any, value: Any) -> None:
-    """A new last key of a mapping (`key`) or item of a sequence (`key` None), the comment
-    lines that followed the old last one moved after it."""
-    last = _last(node)
-    rest = _cut_tail(node, last) if last is not None else None
-    if key is None:
-        node.append(value)
-        key = len(node) - 1
-    else:
-        node[key] = value
-    if rest:
-        _put_tail(node, key, rest)
-
-
-def _drop(node: Any, key: Any) -> None:
-    """`del node[key]`; were it the last, the comment lines after it follow the new last."""
-    rest = _cut_tail(node, key) if key == _last(node) else None
-    del node[key]
-    last = _last(node)
-    if rest and last is not None:
-        _put_tail(node, last, rest)
-
-
-def _last(node: Any) -> Any:
-    if not node:
-        return None
-    return list(node)[-1] if isinstance(node, Mapping) else len(node) - 1
-
-
-def _leaf(node: Any, key: Any) -> tuple[Any, Any]:
-    """The container and key of the last scalar under `node[key]`."""
-    while True:
-        value = node[key]
-        last = _last(value) if isinstance(value, (Mapping, list)) else None
-        if last is None or not hasattr(value, "ca"):
-            return node, key
-        node, key = value, last
-
-
-def _cut_tail(node: Any, key: Any) -> str | None:
-    """Take the whole comment lines that follow `node[key]` (kept by ruamel in the token
-    after its last scalar, behind that line's own end-of-line comment, which stays)."""
-    container, leaf = _leaf(node, key)
-    slot = container.ca.items.get(leaf)
-    at = 2 if isinstance(container, Mapping) else 0
-    token = slot[at] if slot is not None and len(slot) > at else None
-    if token is None:
-        return None
-    own, _, rest = str(token.value).partition("\n")
-    if not rest.strip():
-        return None
-    if own.strip():
-        token.value = own + "\n"
-    else:
-        slot[at] = None
-    return rest
-
-
-def _put_tail(node: Any, key: Any, rest: str) -> None:
-    from ruamel.yaml.error import CommentMark
-    from ruamel.yaml.tokens import CommentToken
-
-    container, leaf = _leaf(node, key)
-    mapping = isinstance(container, Mapping)
-    slot = container.ca.items.setdefault(leaf, [None, None, None, None] if mapping
-                                         else [None, None])
-    at = 2 if mapping else 0
-    if slot[at] is not None:  # its own end-of-line comment comes first
-        slot[at].value = str(slot[at].value).rstrip("\n") + "\n" + rest
-    else:
-        slot[at] = CommentToken("\n" + rest, CommentMark(0), None)
-
-
-def _round_trip(text: str) -> tuple[Any, Any]:
-    """A writer in the file's own style, and the round-trip tree of a text `loading.load`
-    already accepted: quotes kept, a list's dash indented as the file does, no line
-    re-wrapped (as `lpam pin` writes: workflow/pin.py)."""
-    from ruamel.yaml import YAML
-
-    from reconciler.workflow.pin import _sequence_offset
-
-    yaml = YAML()
-    yaml.preserve_quotes = True
-    yaml.width = 4096
-    offset = _sequence_offset(text)
-    yaml.indent(mapping=2, sequence=offset + 2, offset=offset)
-    return yaml, yaml.load(text)
-
-
 def _listed(current: DesiredState, repository: str) -> int | None:
     """The index of `repository` among the desired repositories: its key, `repo:`,
     `url:` or `name:`; a GitHub name matches whatever its letters' case."""
@@ -450,15 +355,3 @@ def _listed(current: DesiredState, repository: str) -> int | None:
         if any(str(n).casefold() == wanted for n in names):
             return index
     return None
-
-
-def _mapping(items: Mapping[str, Any]) -> Any:
-    from ruamel.yaml.comments import CommentedMap
-
-    return CommentedMap(items)
-
-
-def _sequence() -> Any:
-    from ruamel.yaml.comments import CommentedSeq
-
-    return CommentedSeq()

@@ -14,6 +14,7 @@ import io
 from dataclasses import dataclass
 from pathlib import Path
 
+from reconciler import roundtrip
 from reconciler.errors import ConfigError
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
@@ -33,20 +34,14 @@ class Pinned:
 def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
         write: bool = True, lock_timeout: float | None = None) -> list[Pinned]:
     """Pin `path` in place (unless not `write`); the repositories pinned."""
-    from ruamel.yaml import YAML
-
     from reconciler.atomic import write_atomic
     from reconciler.documents import load_desired
     from reconciler.loading import read_text
 
     desired = load_desired(path)  # refuse a bad file before anything is asked of a remote
     store = machine.store()
-    yaml = YAML()
-    yaml.preserve_quotes = True
-    yaml.width = 4096  # never re-wrap a long line
     text = read_text(path)
-    offset = _sequence_offset(text)
-    yaml.indent(mapping=2, sequence=offset + 2, offset=offset)  # the file's own style
+    yaml = roundtrip.writer(text)  # the file's own style, no line re-wrapped
     data = yaml.load(text)
     if data.get("version") != 1:
         raise ConfigError("lpam pin rewrites version 1 desired states only", path=path,
@@ -80,15 +75,6 @@ def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
         yaml.dump(data, out)
         write_atomic(path, out.getvalue())
     return done
-
-
-def _sequence_offset(text: str) -> int:
-    """How far the file indents a list's dash under its key (`  - url:` is 2, `- url:` 0)."""
-    import re
-
-    found = re.search(r"^repositories:[ \t]*(?:#.*)?\n(?:[ \t]*(?:#.*)?\n)*([ \t]*)- ",
-                      text, re.MULTILINE)
-    return len(found.group(1)) if found else 2
 
 
 def _report_ros(machine: Machine, path: Path, report: Report, *,
