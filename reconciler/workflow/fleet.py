@@ -34,6 +34,7 @@ class Vehicle:
     last_pass: str | None
     reason: str | None
     last_seen: str  # when the car last reported (its status commit's time)
+    override: str | None = None  # a local override in force: "phone since <time>"
 
 
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
@@ -69,7 +70,9 @@ def _row(vehicle: str, status: CarStatus, tip: str | None, when: datetime) -> Ve
         up_to_date=None if tip is None or applied is None else applied == tip,
         app=None if app is None else app.name, running=None if app is None else app.running,
         last_pass=None if last is None else last.result,
-        reason=None if last is None else last.reason, last_seen=_seen(when))
+        reason=None if last is None else last.reason, last_seen=_seen(when),
+        override=None if status.override is None else
+        f"{status.override.by} since {status.override.since}")
 
 
 def _seen(when: datetime) -> str:
@@ -104,7 +107,8 @@ def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
     header = ("Vehicle", "Follows", "Applied", "Current", "App", "Running", "Last pass",
               "Last report")
     cells: list[tuple[str, ...]] = [(r.vehicle, r.follows or "?", (r.applied or "none")[:12],
-              {True: "yes", False: "no", None: "?"}[r.up_to_date], r.app or "-",
+              {True: "yes", False: "no", None: "?"}[r.up_to_date],
+              (r.app or "-") + (f" (local override: {r.override})" if r.override else ""),
               {True: "yes", False: "no", None: "?"}[r.running],
               (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""),
               ago(age(r, now)))

@@ -75,3 +75,9 @@ def test_the_published_status_shows_the_override(car: Lpam, fleet: RepoBuilder) 
     body = json.loads(published.stdout)
     assert body["version"] == 2 and body["app"]["name"] == "beta"
     assert body["override"]["by"] == "libpanda-app-manager"
+    clone = car.root.parent / "clone"
+    subprocess.run(["git", "clone", "-q", "--mirror", str(fleet.bare), str(clone)],
+                   check=True, timeout=60)
+    shown = car("fleet", "status", "--repo", str(clone))
+    assert shown.returncode == 0, shown.stderr
+    assert "beta (local override: libpanda-app-manager since" in shown.stdout
