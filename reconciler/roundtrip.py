@@ -114,7 +114,14 @@ def writer(text: str) -> Any:
     yaml.width = 4096
     offset = sequence_offset(text)
     yaml.indent(mapping=2, sequence=offset + 2, offset=offset)
+    # `app: null` as the README writes it, not ruamel's bare `app:` (the same value, but
+    # a reader of the file should not have to know YAML to see there is no app)
+    yaml.representer.add_representer(type(None), _null)
     return yaml
+
+
+def _null(representer: Any, data: None) -> Any:
+    return representer.represent_scalar("tag:yaml.org,2002:null", "null")
 
 
 def mapping(items: Mapping[str, Any]) -> Any:
