@@ -59,7 +59,7 @@ async def _serve(machine: Machine, stopping: threading.Event, *, bus_address: st
     thermometer = Thermometer(machine.layout.thermal_zone)
     bridge = Bridge(machine, lambda char, value: servers[0].notify_threadsafe(char, value),
                     thermometer=thermometer, log=log, bug=bug)
-    server = GattServer(bridge, bus_address=bus_address, adapter=adapter, log=log)
+    server = GattServer(bridge, bus_address=bus_address, adapter=adapter, log=log, bug=bug)
     servers.append(server)
     ticking = asyncio.ensure_future(_tick(server, thermometer, stop))
     try:

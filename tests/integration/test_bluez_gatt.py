@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import threading
 import time
+import traceback
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
@@ -105,9 +106,10 @@ async def bluetoothd(address: str, **kwargs: Any) -> AsyncIterator[BluezDouble]:
 
 @contextlib.asynccontextmanager
 async def served(bus: str, handler: Recorder | None = None,
-                 log: Callable[[str], None] = print) -> AsyncIterator[BluezDouble]:
+                 log: Callable[[str], None] = print,
+                 bug: Callable[[], str] = lambda: "nowhere") -> AsyncIterator[BluezDouble]:
     """bluetoothd on `bus` with lpam's server registered: the double, acting as phones."""
-    server = GattServer(handler or Recorder(), bus_address=bus, log=log)
+    server = GattServer(handler or Recorder(), bus_address=bus, log=log, bug=bug)
     async with bluetoothd(bus) as double, serving(server):
         await double.registered()
         yield double
@@ -143,9 +145,15 @@ def test_registers_the_service_and_advertisement_privzone_looks_for(bus: str) ->
 
 def test_each_phones_reads_and_writes_reach_lpam_with_its_device(bus: str) -> None:
     handler = Recorder()
+    lines: list[str] = []
+    bugs: list[str] = []
+
+    def bug() -> str:  # what lpam ble gives: the traceback goes to lpam's debug log
+        bugs.append(traceback.format_exc())
+        return "debug.log"
 
     async def body() -> None:
-        async with served(bus, handler) as double:
+        async with served(bus, handler, log=lines.append, bug=bug) as double:
             await double.write(INPUT, b'{"type": "app_update"', PHONE_A)
             await double.write(COMMAND, b"A", PHONE_B)
             assert await double.read(CONFIG, PHONE_A) == f"CONFIG for {PHONE_A}".encode()
@@ -165,6 +173,8 @@ def test_each_phones_reads_and_writes_reach_lpam_with_its_device(bus: str) -> No
             (Characteristic.INPUT, b"}", PHONE_B)]
         assert handler.reads == [(Characteristic.CONFIG, PHONE_A),
                                  (Characteristic.CONFIG, PHONE_B)]
+        assert len(bugs) == 1 and "the queue is full" in bugs[0]  # the fault, traced
+        assert any("(details in debug.log)" in line for line in lines), lines
 
     scenario(body)
 

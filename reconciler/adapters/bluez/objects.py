@@ -64,9 +64,11 @@ class Objects:
     """Answers method calls on the exported tree; knows which characteristics notify."""
 
     def __init__(self, handler: GattHandler, *, log: Callable[[str], None],
-                 released: Callable[[], None]) -> None:
+                 released: Callable[[], None],
+                 bug: Callable[[], str] = lambda: "(no debug log)") -> None:
         self._handler = handler
         self._log = log
+        self._bug = bug
         self._released = released
         self.notifying: set[Characteristic] = set()
 
@@ -88,7 +90,8 @@ class Objects:
         except _Refused as refused:
             return Message.new_error(msg, refused.name, refused.text)
         except Exception as exc:  # a malformed call must cost one reply, not the service
-            self._log(f"could not answer {msg.member} on {msg.path}: {exc!r}")
+            self._log(f"could not answer {msg.member} on {msg.path}: {exc!r} "
+                      f"(details in {self._bug()})")
             return Message.new_error(msg, FAILED, "internal error")
 
     def forget(self) -> None:
@@ -171,7 +174,8 @@ class Objects:
         try:
             return fn(*args)
         except Exception as exc:  # the handler's fault must not end the service
-            self._log(f"the {char.name.lower()} {what} failed: {type(exc).__name__}: {exc}")
+            self._log(f"the {char.name.lower()} {what} failed: {type(exc).__name__}: {exc} "
+                      f"(details in {self._bug()})")
             raise _Refused(FAILED, f"{what} failed") from None
         finally:
             spent = time.monotonic() - started

@@ -52,12 +52,16 @@ class GattServer:
     """Privzone's service over BlueZ; `run` serves until its `stop` event is set."""
 
     def __init__(self, handler: GattHandler, *, bus_address: str | None = None,
-                 adapter: str = "/org/bluez/hci0",
-                 log: Callable[[str], None] = print) -> None:
+                 adapter: str = "/org/bluez/hci0", log: Callable[[str], None] = print,
+                 bug: Callable[[], str] = lambda: "(no debug log)") -> None:
+        """`log` writes a line of the service's log; `bug` records the traceback of a fault
+        of lpam's own (called inside the `except`) and says where it went."""
         self._address = bus_address  # None: dbus-fast reads DBUS_SYSTEM_BUS_ADDRESS
         self._adapter = adapter
         self._log = log
-        self._objects = Objects(handler, log=log, released=self._advertisement_released)
+        self._bug = bug
+        self._objects = Objects(handler, log=log, released=self._advertisement_released,
+                                bug=bug)
         self._bus: MessageBus | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
@@ -80,7 +84,8 @@ class GattServer:
             try:
                 await self._serve(bus, stop)
             except Exception as exc:  # a fault of ours must not end the service
-                self._report(f"the Bluetooth service failed: {exc!r}; starting again")
+                self._report(f"the Bluetooth service failed: {exc!r}; starting again "
+                             f"(details in {self._bug()})")
             finally:
                 await self._leave(bus)
             if not stop.is_set():  # the connection was lost or failed: not in a tight loop
