@@ -24,6 +24,7 @@ from migrations import (
     car_status_v0_to_v1,
     car_status_v1_to_v2,
     desired_state_v0_to_v1,
+    desired_state_v1_to_v2,
     generation_meta_v0_to_v1,
     plan_v1_to_v2,
     state_record_v1_to_v2,
@@ -36,13 +37,14 @@ from schemas.kinds import DocumentKind
 from schemas.kinds import DocumentKind as K
 
 CURRENT: dict[DocumentKind, int] = {
-    K.DESIRED_STATE: 1, K.STATE_RECORD: 4, K.PLAN: 2, K.AGENT_CONFIG: 1, K.AGENT_STATUS: 2,
+    K.DESIRED_STATE: 2, K.STATE_RECORD: 4, K.PLAN: 2, K.AGENT_CONFIG: 1, K.AGENT_STATUS: 2,
     K.GENERATION_META: 1, K.CAR_STATUS: 2, K.OVERRIDE: 1,
 }
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
 STEPS: dict[DocumentKind, dict[str, tuple[str, Step]]] = {
-    K.DESIRED_STATE: {"0.0": ("1", desired_state_v0_to_v1.upgrade)},
+    K.DESIRED_STATE: {"0.0": ("1", desired_state_v0_to_v1.upgrade),
+                      "1": ("2", desired_state_v1_to_v2.upgrade)},
     K.STATE_RECORD: {"1": ("2", state_record_v1_to_v2.upgrade),
                      "2": ("3", state_record_v2_to_v3.upgrade),
                      "3": ("4", state_record_v3_to_v4.upgrade)},
@@ -81,13 +83,16 @@ Position = Callable[[Sequence[Union[str, int]]], Union[tuple[int, int], tuple[No
 
 
 def upgrade(
-    kind: DocumentKind | str, data: Any, *, path: Path, position: Position | None = None
+    kind: DocumentKind | str, data: Any, *, path: Path, position: Position | None = None,
+    to: int | None = None,
 ) -> dict[str, Any]:
     """Bring a document of `kind` to CURRENT[kind] by applying pure step functions in order.
 
     `position` (e.g. `Document.position`) maps a location inside `data` to a 1-based
     (line, column); without it, errors about a specific key carry no line. `data` is not
-    modified; the result always has `version: CURRENT[kind]` as an int.
+    modified; the result has `version: CURRENT[kind]` as an int. `to` stops the chain at
+    an older version (`lpam import-lpam` writes a version-1 desired state, the dialect the
+    field's files speak); a document already past it is returned at its own version.
     """
     if kind not in CURRENT:
         raise ValueError(f"unknown document kind {kind!r}")
@@ -113,8 +118,8 @@ def upgrade(
             hint=_MISSING_HINTS[kind],
         )
     version = _known_version(kind, doc["version"], path, where(("version",)))
-    current = str(CURRENT[kind])
-    while version != current:
+    target = str(CURRENT[kind] if to is None else to)
+    while version != target and version in STEPS[kind]:
         version, step = STEPS[kind][version]
         try:
             doc = step(doc)
@@ -123,7 +128,7 @@ def upgrade(
             raise ConfigError(
                 exc.message, path=path, line=line, column=column, hint=exc.hint
             ) from None
-    doc["version"] = CURRENT[kind]
+    doc["version"] = int(version)
     return doc
 
 

@@ -7,9 +7,10 @@ Pydantic's error locations are mapped back onto the YAML tree kept by loading.py
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+import weakref
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
@@ -23,6 +24,16 @@ from schemas.plan import Plan
 
 M = TypeVar("M", bound=BaseModel)
 
+
+class _Places(Protocol):
+    """What places a fault: a parsed document, or a version-1 one seen as the current."""
+
+    def position(self, loc: Iterable[str | int]) -> tuple[int, int]: ...
+
+    def error(self, message: str, loc: Iterable[str | int] = (),
+              hint: str | None = None) -> ConfigError: ...
+
+
 _HINTS = {
     "extra_forbidden": "remove it, or check its spelling against desired-state.example.yaml",
     "missing": "add it",
@@ -35,12 +46,14 @@ _EXAMPLES = {"agent configuration": "the README's agent.yaml (A fleet that follo
 """Where a misspelt key's right spelling is shown, for documents other than a desired state."""
 
 
-def validation_error(doc: Document, exc: ValidationError, what: str) -> ConfigError:
+def validation_error(doc: _Places, exc: ValidationError, what: str) -> ConfigError:
     """The first pydantic complaint as a ConfigError at the offending node."""
     error = exc.errors()[0]
     loc = [p for p in error["loc"] if not (isinstance(p, str) and "[" in p)]
     # Pydantic inserts union-member names ('str', 'function-after[…]') into locations.
     loc = [p for p in loc if not (isinstance(p, str) and p in {"str", "dict", "list"})]
+    if isinstance(doc, _V1Places):
+        loc = doc.written(loc)
     field = ".".join(str(p) for p in loc) or what
     message = str(error["msg"]).removeprefix("Value error, ")
     if error["type"] == "extra_forbidden":
@@ -55,7 +68,7 @@ def validation_error(doc: Document, exc: ValidationError, what: str) -> ConfigEr
     return doc.error(message, loc, hint)
 
 
-def _validate(doc: Document, data: Any, model: type[BaseModel], what: str) -> Any:
+def _validate(doc: _Places, data: Any, model: type[BaseModel], what: str) -> Any:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
@@ -69,16 +82,88 @@ def load_desired(path: Path) -> DesiredState:
 
 def desired_from(doc: Document) -> DesiredState:
     """The desired state in a document already parsed (parsing is the costly part: a large
-    document is parsed once, whoever looks at it first)."""
+    document is parsed once, whoever looks at it first).
+
+    A file of version 1 says `app:` where the current model says `apps: [ … ]`: its
+    faults are placed by `_V1Places`, at the line and column of the file as written."""
     from migrations import upgrade
 
     data = upgrade(DocumentKind.DESIRED_STATE, doc.data, path=doc.path, position=doc.position)
-    _check_duplicate_repositories(doc, data)
-    state: DesiredState = _validate(doc, data, DesiredState, "desired state")
+    current = str(_mapping(doc.data).get("version")).strip() == str(data["version"])
+    placed: _Places = doc if current else _V1Places(doc)
+    if placed is doc and "app" in _mapping(doc.data):
+        raise doc.error("unknown key 'app': version 2 lists apps under `apps:`", ["app"],
+                        "write `apps: [NAME]`, or `version: 1` to keep `app:`")
+    _check_duplicate_repositories(placed, data)
+    _check_duplicate_apps(placed, data)
+    state: DesiredState = _validate(placed, data, DesiredState, "desired state")
+    _APP_PLACES[id(state)] = (doc.path, [placed.position(["apps", i])
+                                         for i in range(len(state.apps))])
+    weakref.finalize(state, _APP_PLACES.pop, id(state), None)
     return state
 
 
-def _check_duplicate_repositories(doc: Document, data: dict[str, Any]) -> None:
+def _mapping(data: Any) -> dict[Any, Any]:
+    return data if isinstance(data, dict) else {}
+
+
+class _V1Places:
+    """A version-1 document seen through the current model's locations: `apps.0.…` is
+    `app.…` in the file (the migration put the one app first), so a fault in the app is
+    reported where the user wrote it (the tests of version-1 files are the check)."""
+
+    def __init__(self, doc: Document) -> None:
+        self.path, self._doc = doc.path, doc
+
+    @staticmethod
+    def written(loc: Iterable[str | int]) -> list[str | int]:
+        """`loc` of the current model as the version-1 file writes it."""
+        parts = list(loc)
+        return ["app", *parts[2:]] if parts[:1] == ["apps"] else parts
+
+    def position(self, loc: Iterable[str | int]) -> tuple[int, int]:
+        return self._doc.position(self.written(loc))
+
+    def error(self, message: str, loc: Iterable[str | int] = (),
+              hint: str | None = None) -> ConfigError:
+        line, column = self.position(loc)
+        return ConfigError(message, path=self.path, line=line, column=column, hint=hint)
+
+
+_APP_PLACES: dict[int, tuple[Path, list[tuple[int, int]]]] = {}
+"""id(desired state) → its file and each app's (line, column), while the model lives: the
+model holds no positions (it is compared and fingerprinted by content), yet planning's
+refusal of several apps names the second app's place."""
+
+
+def app_place(desired: DesiredState, index: int) -> tuple[Path | None, int | None, int | None]:
+    """The file, line and column of `desired.apps[index]` as loaded (None: not loaded from
+    a document, e.g. a model built or copied in code)."""
+    found = _APP_PLACES.get(id(desired))
+    if found is None or index >= len(found[1]):
+        return None, None, None
+    path, places = found
+    return (path, *places[index])
+
+
+def _check_duplicate_apps(doc: _Places, data: dict[str, Any]) -> None:
+    """An app named twice, refused at its second entry (the model refuses it too, but
+    without a place)."""
+    from schemas.desired import duplicate_app
+
+    apps = data.get("apps")
+    seen: dict[str, int] = {}
+    for index, item in enumerate(apps if isinstance(apps, list) else []):
+        name = item.get("name") if isinstance(item, dict) else item
+        if not isinstance(name, str):
+            continue
+        if name in seen:
+            raise doc.error(duplicate_app(name, seen[name]), ["apps", index],
+                            "remove one of the two entries")
+        seen[name] = index
+
+
+def _check_duplicate_repositories(doc: _Places, data: dict[str, Any]) -> None:
     seen: dict[str, int] = {}
     repos = data.get("repositories")
     if not isinstance(repos, list):

@@ -107,6 +107,8 @@ def guess(data: Any, *, path: Path, position: Position) -> Kind:
             f"cannot tell which kind of document this is: none of its keys ({keys}) "
             f"belongs to {_kinds_and_keys()}", path=path, line=line, column=column,
             hint=_FORCE_HINT)
+    if "version" in data and Kind.CATALOG in votes:  # a catalog has no `version:`: its
+        votes.setdefault(Kind.DESIRED, []).extend(votes.pop(Kind.CATALOG))  # `apps:` is v2's
     most = max(len(keys) for keys in votes.values())
     leaders = [kind for kind in FILE_KINDS if len(votes.get(kind, [])) == most]
     if len(leaders) > 1:
@@ -133,12 +135,14 @@ def _claims(key: str, value: Any) -> list[Kind]:
 def _top_keys(kind: Kind) -> frozenset[str]:
     """Every top-level key of `kind` but `version`, which all YAML kinds share."""
     from migrations.desired_state_v0_to_v1 import KEYS as LPAM_KEYS
+    from migrations.desired_state_v1_to_v2 import KEYS as V1_KEYS
     from schemas.agent import AgentConfig
     from schemas.catalog import RawCatalog
     from schemas.desired import DesiredState
     from schemas.plan import Plan
 
-    fields = {Kind.DESIRED: {*DesiredState.model_fields, *LPAM_KEYS},
+    # `apps:` votes for a catalog; a desired state's (version 2) has a `version:` (guess)
+    fields = {Kind.DESIRED: {*DesiredState.model_fields, *LPAM_KEYS, *V1_KEYS} - {"apps"},
               Kind.CATALOG: set(RawCatalog.model_fields),
               Kind.AGENT: set(AgentConfig.model_fields),
               Kind.PLAN: set(Plan.model_fields)}[kind]
@@ -188,9 +192,12 @@ def _read(doc: Document, kind: Kind) -> str:
                 f"{config.source.url} (branch {config.source.branch}) {who}, a pass every "
                 f"{config.interval_seconds:g} s{extras}")
     state = desired_from(doc)
-    app = state.app.name if state.app else "none"
-    return (f"OK: {path} is a desired state (version {state.version}): "
-            f"{len(state.repositories)} repositories, app {app}")
+    names = ", ".join(a.name for a in state.apps) or "none"
+    written = str(doc.data.get("version")).strip()
+    read_as = "" if written == str(state.version) else f", read as version {state.version}"
+    return (f"OK: {path} is a desired state (version {written}){read_as}: "
+            f"{len(state.repositories)} repositories, app{'s' if len(state.apps) > 1 else ''} "
+            f"{names}")
 
 
 def _plan(path: Path) -> str:

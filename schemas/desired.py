@@ -1,19 +1,25 @@
-"""Desired state, version 1: the document an operator writes (or commits for the Pi to watch).
+"""Desired state, version 2: the document an operator writes (or commits for the Pi to watch).
 
 ```yaml
-version: 1
+version: 2
 repositories:
   - repo: jmscslgroup/libpanda-default-apps   # or url: https://… | git://… | file://… | path
     ref: main                                  # branch, tag, full or abbreviated commit
-app:                                           # or `app: pandarecord`, or `app: null`
-  name: pandarecord
-  repository: jmscslgroup/libpanda-default-apps  # only when two repositories offer the name
-  params: {RATE_HZ: "10"}
+apps:                                          # a list; `apps: []` for none
+  - name: pandarecord                          # or the name alone: `- pandarecord`
+    repository: jmscslgroup/libpanda-default-apps  # only when two repositories offer it
+    params: {RATE_HZ: "10"}
 mirrors: {"https://github.com/": "git://192.168.4.1/"}   # optional: git's insteadOf
 ros: {workspace: /home/circles/catkin_ws, user: circles}  # optional: these are defaults
 vehicle: {source: {follow: /etc/libpanda.d/currentCan.csv}}  # optional: schemas/vehicle.py
 gates: {stationary_seconds: 60, windows: ["22:00-06:00"]}  # optional: no gates without it
 ```
+
+Version 1 said `app: X` (one app, or `app: null`); it is still read, through
+migrations/desired_state_v1_to_v2.py, and lpam's own edits keep such a file version 1.
+Version 2 lists apps because several apps may one day run side by side (issue 22); until
+the planner for several apps exists, a desired state of more than one app is a valid
+document that planning refuses. `app` (the property) is the single-app engine's view.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ from schemas.names import (
 from schemas.service import Health, check_user
 from schemas.vehicle import GatesSpec, VehicleSpec
 
-CURRENT_VERSION = 1
+CURRENT_VERSION = 2
 PARAM_VALUE_LIMIT = 4096  # an environment variable's value; kernels cap one at 128 KiB
 
 
@@ -110,7 +116,7 @@ class RepositorySpec(BaseModel):
 
 
 class AppSpec(BaseModel):
-    """The one app the vehicle should have installed and running."""
+    """An app the vehicle should have installed and running."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -150,6 +156,12 @@ class AppSpec(BaseModel):
         return value
 
 
+def duplicate_app(name: str, first: int) -> str:
+    """Why a second entry of one app name is refused (documents.py places it)."""
+    return (f"app {name} is listed twice (first as item {first + 1} of apps); list each app "
+            "once")
+
+
 class RosSpec(BaseModel):
     """The ROS catkin workspace apps' `ros_repositories` are built in."""
 
@@ -184,9 +196,10 @@ class DesiredState(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    version: Literal[1] = Field(description="document version; this is version 1")
+    version: Literal[2] = Field(description="document version; this is version 2")
     repositories: list[RepositorySpec] = Field(default_factory=list)
-    app: AppSpec | None = None
+    apps: list[AppSpec] = Field(default_factory=list, description="the apps to install and "
+                                "run, each name once; an item may be the app's name alone")
     mirrors: dict[StrictStr, StrictStr] = Field(
         default_factory=dict, description="URL prefix → replacement, as git's "
         "url.<base>.insteadOf: app and ROS repositories are fetched from the replacement")
@@ -215,13 +228,27 @@ class DesiredState(BaseModel):
         prefix = max(matches, key=len)
         return self.mirrors[prefix] + url[len(prefix):]
 
-    @field_validator("app", mode="before")
+    @field_validator("apps", mode="before")
     @classmethod
     def _app_shorthand(cls, value: Any) -> Any:
-        return {"name": value} if isinstance(value, str) else value
+        if not isinstance(value, list):
+            return value
+        return [{"name": item} if isinstance(item, str) else item for item in value]
+
+    @property
+    def app(self) -> AppSpec | None:
+        """The single app of the one-app engine: None for `apps: []`. With several apps
+        this is the first; planning refuses such a desired state before it asks
+        (workflow/planning.py), so no engine acts on a list cut short."""
+        return self.apps[0] if self.apps else None
 
     @model_validator(mode="after")
     def _unique(self) -> DesiredState:
+        names: dict[str, int] = {}
+        for index, app in enumerate(self.apps):
+            if app.name in names:
+                raise ValueError(duplicate_app(app.name, names[app.name]))
+            names[app.name] = index
         seen: dict[str, int] = {}
         for index, spec in enumerate(self.repositories):
             for name in {spec.key, spec.url or spec.repo or ""}:

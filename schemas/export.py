@@ -2,6 +2,11 @@
 
 Editors and CI of a desired-state repository can validate against these files without
 lpam. `python -m schemas.export` rewrites them; a test fails when they drift from the models.
+
+An older version's schema stays, frozen: fleet repositories' editors reference
+`desired-state.v1.schema.json` by name, and lpam still reads version 1 (through
+migrations/), so their files are still right. No model renders it any more; `FROZEN`
+holds its digest, and a test fails if the file is changed or removed.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from schemas.plan import Plan
 from schemas.record import StateRecord
 
 DOCUMENTS: dict[str, type[BaseModel]] = {
-    "desired-state.v1.schema.json": DesiredState,
+    "desired-state.v2.schema.json": DesiredState,
     "app-catalog.schema.json": RawCatalog,
     "state-record.v4.schema.json": StateRecord,
     "plan.v2.schema.json": Plan,
@@ -34,6 +39,11 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "override.v1.schema.json": LocalOverride,
 }
 FOLDER = Path(__file__).resolve().parent / "json"
+FROZEN: dict[str, str] = {
+    "desired-state.v1.schema.json":
+        "2c13c0f032f457b405cd94c08cb115a65c9c29a713cb7278976f78589e00bdd8",
+}
+"""Schemas of versions lpam still reads but no longer writes: file name → SHA-256."""
 
 
 def rendered() -> dict[str, str]:

@@ -100,14 +100,17 @@ def import_lpam(etc_dir: Path) -> str:
     found and where."""
     from pydantic import ValidationError
 
+    from migrations.desired_state_v1_to_v2 import upgrade
     from schemas.desired import DesiredState
 
     imported = convert(gather(etc_dir))
-    try:
-        DesiredState.model_validate(imported.desired)
+    try:  # written as version 1, the field's dialect; checked as lpam reads it
+        DesiredState.model_validate(upgrade(imported.desired))
     except ValidationError as exc:
         first = exc.errors()[0]
-        where = ".".join(str(part) for part in first["loc"])
+        loc = list(first["loc"])
+        loc = ["app", *loc[2:]] if loc[:1] == ["apps"] else loc
+        where = ".".join(str(part) for part in loc)
         raise ConfigError(
             f"the imported desired state is invalid at {where}: {first['msg']}",
             path=imported.source, hint="fix the LPAM file, then import again",

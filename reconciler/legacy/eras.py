@@ -43,10 +43,12 @@ def from_yaml(files: LpamFiles) -> tuple[dict[str, Any], list[str], list[str]]:
             hint="LPAM wrote `version: 0.0`, `repositories:` and `current:` here",
         )
     if "version" in data:
-        desired = upgrade(DocumentKind.DESIRED_STATE, data, path=path, position=doc.position)
-        if str(data["version"]).strip() == "1":
+        desired = upgrade(DocumentKind.DESIRED_STATE, data, path=path, position=doc.position,
+                          to=1)
+        if desired["version"] != 1 or str(data["version"]).strip() == "1":
             raise doc.error(
-                "this is already an lpam desired state (version 1), not an LPAM manifest",
+                f"this is already an lpam desired state (version {desired['version']}), not "
+                "an LPAM manifest",
                 loc=("version",), hint=f"use it as it is: lpam plan -f {path}",
             )
         app = desired["app"] or "None (no app installed)"

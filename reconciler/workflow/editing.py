@@ -92,13 +92,18 @@ def github_repository(value: str) -> str:
 def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOptions,
                report: Report) -> Edited:
     """`app:` becomes `{name: NAME}` (a fresh entry: another app's params are not its
-    own), or `null` for no app; the same app again changes nothing in the file."""
+    own), or `null` for no app; the same app again changes nothing in the file. A
+    version-2 file's `apps:` becomes that one app, or `[]`: the phone and the shim know
+    one app (issue 22 will make them replace only the apps that share a resource)."""
     from schemas.names import check_app_name
 
     if name is not None:
         checked("app name", name, check_app_name)
 
     def change(tree: Any, current: DesiredState) -> None:
+        if _listing(tree):
+            _enable_listed(tree, current, name)
+            return
         entry = tree.get("app")
         if name is None:
             if current.app is not None:
@@ -106,14 +111,43 @@ def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOpt
         elif current.app is not None and current.app.name == name:
             return
         elif isinstance(entry, MutableMapping):  # the same entry, its other keys dropped: its
-            roundtrip.replace(entry, "name", name)  # comments stay where they were
-            for key in [k for k in entry if k != "name"]:
-                roundtrip.drop(entry, key)
+            _renamed(entry, name)                 # comments stay where they were
         else:
             roundtrip.replace(tree, "app", name if isinstance(entry, str)
                               else roundtrip.mapping({"name": name}))
 
     return edit(machine, change, by=by, options=options, report=report)
+
+
+def _listing(tree: Any) -> bool:
+    """Whether the file is version 2 (`apps:`), not version 1 (`app:`): an edit keeps
+    the version the file was written in (a fleet's editors may read only version 1)."""
+    return bool(tree.get("version") != 1)
+
+
+def _renamed(entry: Any, name: str) -> None:
+    roundtrip.replace(entry, "name", name)
+    for key in [k for k in entry if k != "name"]:
+        roundtrip.drop(entry, key)
+
+
+def _enable_listed(tree: Any, current: DesiredState, name: str | None) -> None:
+    """`apps:` of a version-2 file becomes `[NAME]` (its one entry renamed when it had
+    one, so its comments stay) or `[]`; unchanged when it already is."""
+    if [a.name for a in current.apps] == ([] if name is None else [name]):
+        return
+    entries = tree.get("apps")
+    if name is not None and entries is not None and len(entries) == 1 and \
+            isinstance(entries[0], MutableMapping):
+        _renamed(entries[0], name)
+        return
+    listed = roundtrip.sequence()
+    if name is not None:
+        listed.append(roundtrip.mapping({"name": name}))
+    if "apps" in tree:
+        roundtrip.replace(tree, "apps", listed)
+    else:
+        roundtrip.add(tree, "apps", listed)
 
 
 def add_repository(machine: Machine, repository: str, branch: str | None, *, by: str,
@@ -194,15 +228,14 @@ def set_params(machine: Machine, app: str, params: Mapping[str, str], *, by: str
                             hint=UNCHANGED)
 
     def change(tree: Any, current: DesiredState) -> None:
-        if current.app is None or current.app.name != app:
-            wanted = "no app" if current.app is None else f"app {current.app.name}"
-            raise LpamError(f"{app} is not the desired app (the desired state names {wanted})",
-                            hint=f"enable it first; {UNCHANGED}")
-        if dict(current.app.params) == dict(params):
+        index = next((i for i, a in enumerate(current.apps) if a.name == app), None)
+        if index is None:
+            listed = ", ".join(f"app {a.name}" for a in current.apps)
+            raise LpamError(f"{app} is not the desired app (the desired state names "
+                            f"{listed or 'no app'})", hint=f"enable it first; {UNCHANGED}")
+        if dict(current.apps[index].params) == dict(params):
             return
-        if not isinstance(tree.get("app"), MutableMapping):  # the `app: NAME` shorthand
-            roundtrip.replace(tree, "app", roundtrip.mapping({"name": app}))
-        entry = tree["app"]
+        entry = _entry(tree, index, app)
         if "params" in entry and not params:
             roundtrip.drop(entry, "params")
         elif "params" in entry:
@@ -211,6 +244,19 @@ def set_params(machine: Machine, app: str, params: Mapping[str, str], *, by: str
             roundtrip.add(entry, "params", roundtrip.mapping(dict(params)))
 
     return edit(machine, change, by=by, options=options, report=report)
+
+
+def _entry(tree: Any, index: int, name: str) -> Any:
+    """The round-trip mapping of the desired app `name` (item `index` of a version-2
+    file's `apps:`, a version-1 file's `app:`), a `NAME` shorthand made a mapping."""
+    if _listing(tree):
+        entries = tree["apps"]
+        if not isinstance(entries[index], MutableMapping):
+            entries[index] = roundtrip.mapping({"name": name})
+        return entries[index]
+    if not isinstance(tree.get("app"), MutableMapping):  # the `app: NAME` shorthand
+        roundtrip.replace(tree, "app", roundtrip.mapping({"name": name}))
+    return tree["app"]
 
 
 def update(machine: Machine, *, options: ApplyOptions, report: Report) -> Applied:
@@ -333,15 +379,20 @@ def _put(path: Path, data: bytes | None, before: bytes | None) -> None:
     write_atomic(path, data, mode=mode)
 
 
-def _version_one(data: Any, path: Path) -> None:
-    """Edits are made in the current format's terms; an older document (LPAM's manifest,
-    version 0.0) is refused rather than edited into a mixture of two formats."""
-    from reconciler.errors import ConfigError
-    from schemas.desired import CURRENT_VERSION
+EDITABLE = (1, 2)
+"""The versions an edit is made in, each in its own terms (`app:` or `apps:`)."""
 
-    if not isinstance(data, dict) or data.get("version") != CURRENT_VERSION:
-        raise ConfigError(f"only a version {CURRENT_VERSION} desired state can be edited "
-                          "here", path=path, line=1, column=1,
+
+def _version_one(data: Any, path: Path) -> None:
+    """Edits are made in the file's own version's terms, version 1 or 2; an older
+    document (LPAM's manifest, version 0.0) is refused rather than edited into a mixture
+    of two formats."""
+    from reconciler.errors import ConfigError
+
+    if not isinstance(data, dict) or data.get("version") not in EDITABLE \
+            or isinstance(data.get("version"), bool):
+        raise ConfigError("only a version 1 desired state (or a version 2 one) can be "
+                          "edited here", path=path, line=1, column=1,
                           hint="convert it with `lpam import-lpam -o FILE` and review it; "
                           f"{UNCHANGED}")
 

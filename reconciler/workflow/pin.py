@@ -43,8 +43,8 @@ def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
     text = read_text(path)
     yaml = roundtrip.writer(text)  # the file's own style, no line re-wrapped
     data = yaml.load(text)
-    if data.get("version") != 1:
-        raise ConfigError("lpam pin rewrites version 1 desired states only", path=path,
+    if data.get("version") not in (1, 2):  # the file keeps its version: only refs change
+        raise ConfigError("lpam pin rewrites version 1 and 2 desired states only", path=path,
                           hint="upgrade the file first (lpam validate says how)")
     items = data.get("repositories") or []
     if len(items) != len(desired.repositories):

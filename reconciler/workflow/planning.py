@@ -37,6 +37,7 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
     if offline and out is not None:
         raise LpamError("an --offline plan cannot be saved: it may hold values known only "
                         "after a fetch", hint="drop --offline to save an exact plan")
+    refuse_several_apps(desired, path)
     if offline:
         return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
                        busy=holder(machine.layout))[1]
@@ -77,6 +78,7 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     from reconciler.planning.plan import make_plan
     from reconciler.state import read_record
 
+    refuse_several_apps(desired, path)  # every plan and apply passes here
     layout = machine.layout
     store = machine.store()
     record = read_record(layout)
@@ -104,6 +106,25 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     if busy is None and observed.interrupted:
         report(Note(interrupted_note(observed.interrupted, made)))
     return store, made
+
+
+def refuse_several_apps(desired: DesiredState, path: Path) -> None:
+    """A desired state of several apps is a valid document (`lpam validate` accepts it),
+    but this lpam's engine installs and runs one app: it is refused before anything is
+    resolved or locked, at the second app, until the planner of issue 22 exists. (The
+    model's `app` is the first of several: nothing may act on it.)"""
+    if len(desired.apps) < 2:
+        return
+    from reconciler.documents import app_place
+    from reconciler.errors import ConfigError
+
+    where, line, column = app_place(desired, 1)
+    names = ", ".join(a.name for a in desired.apps)
+    raise ConfigError(
+        f"the desired state lists {len(desired.apps)} apps ({names}): running several apps "
+        "at once is not available yet in this lpam", path=where or path, line=line,
+        column=column, hint="keep one app under `apps:` (several apps at once: issue 22's "
+        "planner, to come)")
 
 
 def _stop_released(observed: Observed, desired: DesiredState, report: Report) -> Observed:

@@ -290,7 +290,7 @@ def test_resolving_a_desired_state_reads_the_same_from_either_store(
     store, remote, layout = world
     wanted = remote.first[:10] if ref == "short" else ref
     desired = DesiredState.model_validate(
-        {"version": 1, "repositories": [{"url": remote.url, "ref": wanted}]})
+        {"version": 2, "repositories": [{"url": remote.url, "ref": wanted}]})
     online = resolve(desired, base_dir=layout.root, store=store, fetch=Fetch.CHECKOUT)
     (target,) = online.repositories
     assert target.commit is not None and target.commit == getattr(remote, which)

@@ -49,7 +49,7 @@ def run(etc: Path) -> tuple[str, dict[str, Any]]:
             break
         header.append(" ".join(line[1:].split()))
     data = load(etc / "out.yaml", text).data
-    DesiredState.model_validate(data)
+    DesiredState.model_validate(migrations.upgrade("desired-state", data, path=etc / "out.yaml"))
     return " ".join(header), data
 
 
@@ -267,7 +267,7 @@ def test_a_desired_state_is_not_imported_again(tmp_path: Path) -> None:
 
 def test_newer_manifest_version_is_refused(tmp_path: Path) -> None:
     etc = build_files(tmp_path, {"app-manifest.yaml": "version: 3\n"})
-    with pytest.raises(VersionError, match="document version 3, this lpam reads up to 1"):
+    with pytest.raises(VersionError, match="document version 3, this lpam reads up to 2"):
         import_lpam(etc)
 
 

@@ -15,6 +15,7 @@ from migrations import (
     STEPS,
     agent_status_v1_to_v2,
     desired_state_v0_to_v1,
+    desired_state_v1_to_v2,
     generation_meta_v0_to_v1,
     plan_v1_to_v2,
     state_record_v1_to_v2,
@@ -37,6 +38,7 @@ FIXTURES = Path(migrations.__file__).parent / "fixtures"
 # Every registered step and the fixture folder that proves it.
 STEP_FIXTURES = {
     ("desired-state", "0.0"): FIXTURES / "desired-state" / "v0_to_v1",
+    ("desired-state", "1"): FIXTURES / "desired-state" / "v1_to_v2",
     ("state-record", "1"): FIXTURES / "state-record" / "v1_to_v2",
     ("state-record", "2"): FIXTURES / "state-record" / "v2_to_v3",
     ("state-record", "3"): FIXTURES / "state-record" / "v3_to_v4",
@@ -98,7 +100,7 @@ def test_v0_to_v1_step_matches_fixture(before: Path, after: Path) -> None:
 @pytest.mark.parametrize(("before", "after"), V0_PAIRS, ids=lambda p: p.name)
 def test_upgrade_chain_matches_fixture_and_validates(before: Path, after: Path) -> None:
     result = upgrade("desired-state", read(before), path=before)
-    assert result == read(after)
+    assert result == desired_state_v1_to_v2.upgrade(read(after))  # the chain goes on to 2
     DesiredState.model_validate(result)
 
 
@@ -217,11 +219,11 @@ def test_state_record_v1_with_a_bad_flag_is_located() -> None:
     assert (info.value.line, info.value.column) == (4, 3)
 
 
-@pytest.mark.parametrize("version", [1, "1", " 1 "])
+@pytest.mark.parametrize("version", [2, "2", " 2 "])
 def test_current_version_passes_through(version: object) -> None:
-    data = {"version": version, "repositories": [{"repo": "a/b"}], "app": "x"}
+    data = {"version": version, "repositories": [{"repo": "a/b"}], "apps": ["x"]}
     result = upgrade("desired-state", data, path=PATH)
-    assert result == {"version": 1, "repositories": [{"repo": "a/b"}], "app": "x"}
+    assert result == {"version": 2, "repositories": [{"repo": "a/b"}], "apps": ["x"]}
     assert data["version"] == version
 
 
@@ -237,7 +239,7 @@ def test_newer_version_is_refused_naming_both(kind: DocumentKind) -> None:
 
 
 def test_newer_version_position_comes_from_the_document() -> None:
-    doc = load(PATH, "# a comment\napp: x\nversion: 2\n")
+    doc = load(PATH, "# a comment\napp: x\nversion: 3\n")
     with pytest.raises(VersionError) as info:
         upgrade("desired-state", doc.data, path=PATH, position=doc.position)
     assert (info.value.line, info.value.column) == (3, 1)

@@ -62,7 +62,7 @@ def test_the_readme_agent_yaml_with_a_vehicle_id_is_agent_settings(tmp_path: Pat
     ("version: 1\nvehicle: {stale_seconds: 5}\ngates: {stationary_seconds: 60}\n",
      "is a desired state"),
     ("version: 0.0\nrepositories: {jmscslgroup/libpanda-default-apps: {branch: main}}\n"
-     "current: pandarecord\n", "is a desired state (version 1)"),  # LPAM's manifest
+     "current: pandarecord\n", "is a desired state (version 0.0), read as version 2"),
     ("apps:\n  - name: logger\n", "is an app catalog with 1 apps (logger)"),
     ("version: 1\nsource: {url: 'https://h/fleet'}\nvehicle_file: /etc/libpanda.d/vin\n",
      "as the vehicle named in /etc/libpanda.d/vin"),
