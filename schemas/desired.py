@@ -24,6 +24,7 @@ document that planning refuses. `app` (the property) is the single-app engine's 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
@@ -241,6 +242,14 @@ class DesiredState(BaseModel):
         this is the first; planning refuses such a desired state before it asks
         (workflow/planning.py), so no engine acts on a list cut short."""
         return self.apps[0] if self.apps else None
+
+    def model_copy(self, *, update: Mapping[str, Any] | None = None,
+                   deep: bool = False) -> DesiredState:
+        """A copy with `update`; `app` is refused by name: it is a property now, and
+        pydantic would set it beside the property silently (the copy keeping its apps)."""
+        if update is not None and "app" in update:
+            raise TypeError("DesiredState.app is read-only: update `apps` (a list) instead")
+        return super().model_copy(update=update, deep=deep)
 
     @model_validator(mode="after")
     def _unique(self) -> DesiredState:

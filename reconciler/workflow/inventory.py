@@ -72,7 +72,7 @@ def _offline(machine: Machine, store: GitStore, desired: DesiredState, spec: Rep
     from reconciler.observe.targets import Fetch, resolve
     from schemas.record import RepositoryRecord
 
-    alone = desired.model_copy(update={"repositories": [spec], "app": None})
+    alone = desired.model_copy(update={"repositories": [spec], "apps": []})
     try:
         target = resolve(alone, base_dir=path.resolve().parent, store=store,
                          fetch=Fetch.OFFLINE, root=machine.layout.root).repositories[0]

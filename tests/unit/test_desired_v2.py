@@ -196,3 +196,10 @@ def test_a_v2_shorthand_is_found_by_name_and_several_become_one(
     editing.enable_app(machine, "rec", by="t", options=ApplyOptions(), report=quiet)
     assert [a.name for a in edited["desired"].apps] == ["rec"]  # the phone knows one app
     assert edited["text"].startswith("version: 2\n")
+
+
+def test_app_is_read_only_and_a_copy_cannot_set_it_beside_the_list() -> None:
+    state = DesiredState.model_validate({"version": 2, "apps": ["rec"]})
+    with pytest.raises(TypeError, match="update `apps`"):
+        state.model_copy(update={"app": None})
+    assert state.model_copy(update={"apps": []}).app is None
