@@ -165,6 +165,20 @@ def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,
 
 
 def desired_fingerprint(desired: DesiredState | None) -> str:
-    """What a hold compares: the desired state's content, not its formatting."""
-    text = "" if desired is None else desired.model_dump_json()
+    """What a hold compares: the desired state's content, not its formatting. A desired
+    state of at most one app is taken in version 1's shape (`app:`), as the lpam before
+    version 2 took it: a hold recorded then (an operator's stop, a rollback) must not end
+    because lpam was upgraded, only because the desired state changed."""
+    import json
+
+    if desired is None:
+        text = ""
+    elif len(desired.apps) > 1:
+        text = desired.model_dump_json()
+    else:
+        dumped = desired.model_dump(mode="json")
+        shaped = {("app" if k == "apps" else k): (v[0] if v else None) if k == "apps" else v
+                  for k, v in dumped.items()}
+        shaped["version"] = 1
+        text = json.dumps(shaped, ensure_ascii=False, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()

@@ -203,3 +203,22 @@ def test_app_is_read_only_and_a_copy_cannot_set_it_beside_the_list() -> None:
     with pytest.raises(TypeError, match="update `apps`"):
         state.model_copy(update={"app": None})
     assert state.model_copy(update={"apps": []}).app is None
+
+
+def test_a_hold_survives_the_upgrade_to_version_2(tmp_path: Path) -> None:
+    """A stop or rollback holds while the desired state's fingerprint is unchanged: the
+    digest below is the one the lpam before version 2 recorded for this file, so an
+    upgraded lpam does not start an app the operator stopped."""
+    from reconciler.workflow.operate import desired_fingerprint
+
+    text = ("version: 1\nrepositories: [{repo: a/b, ref: main}]\napp: {name: x, params: "
+            "{A: 'é ü', B: '2'}, user: circles, health: {settle_seconds: 5}}\nmirrors: "
+            "{'https://github.com/': 'git://192.168.4.1/'}\nros: {workspace: /home/c/ws}\n"
+            "gates: {stationary_seconds: 60, windows: ['22:00-06:00']}\n")
+    digest = "3ccf3fad0caf55cd0dd9230ad164f0051e536e249c4bdce8d42bef09febfa134"
+    assert desired_fingerprint(load_desired(write(tmp_path, text))) == digest
+    v2 = text.replace("version: 1", "version: 2").replace("app: {", "apps: [{") \
+        .replace("5}}\n", "5}}]\n")
+    assert desired_fingerprint(load_desired(write(tmp_path, v2))) == digest
+    assert desired_fingerprint(load_desired(write(tmp_path, "version: 2\napps: [x, y]\n"))) \
+        != desired_fingerprint(load_desired(write(tmp_path, "version: 2\napps: [x]\n")))
