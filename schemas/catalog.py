@@ -19,6 +19,7 @@ from pydantic import (
     Field,
     StrictBool,
     StrictStr,
+    WithJsonSchema,
     field_validator,
     model_validator,
 )
@@ -44,7 +45,10 @@ def check_resource_name(value: str) -> str:
     return value
 
 
-ResourceName = Annotated[StrictStr, AfterValidator(check_resource_name)]
+ResourceName = Annotated[
+    StrictStr, AfterValidator(check_resource_name),
+    WithJsonSchema({"type": "string", "pattern": _RESOURCE.pattern}),  # editors check it too
+]
 
 
 class _Strict(BaseModel):
