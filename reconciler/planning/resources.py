@@ -82,13 +82,15 @@ def refuse(found: list[Conflict]) -> None:
     if not found:
         return
     conflict = found[0]
-    first, second = conflict.claims[0], conflict.claims[1]
-    others = "".join(f", app {c.app} ({c.where})" for c in conflict.claims[2:])
+    second = conflict.claims[1]
+    rivals = [f"{c.app} ({c.where})" for c in conflict.claims if c is not second]
+    named = f"app {rivals[0]} claims" if len(rivals) == 1 else \
+        f"apps {', '.join(rivals[:-1])} and {rivals[-1]} claim"
     more = f"; {len(found) - 1} more resource(s) are claimed twice: " \
         f"{', '.join(c.resource for c in found[1:])}" if len(found) > 1 else ""
     raise ConfigError(
         f"app {second.app} claims the exclusive resource {_named(conflict.resource)}, which "
-        f"app {first.app} ({first.where}){others} claims too; one owner at a time{more}",
+        f"{named} too; one owner at a time{more}",
         path=second.where.path, line=second.where.line, column=second.where.column,
         hint=_hint(conflict.resource),
     )
@@ -113,7 +115,7 @@ def _named(resource: str) -> str:
 
 def _hint(resource: str) -> str:
     if resource.startswith(SERVICE_PREFIX):
-        return "remove one of the two apps from the desired state; two apps cannot both " \
+        return "keep one of these apps in the desired state; two apps cannot both " \
             "start and stop one unit"
-    return "remove one of the two apps from the desired state, or give them different " \
+    return "keep one of these apps in the desired state, or give them different " \
         "resources in their catalogs (libpanda-apps.yaml `resources:`)"

@@ -117,8 +117,8 @@ def test_two_apps_claiming_panda_are_refused_naming_both_positions() -> None:
     error = caught.value
     assert error.where == "desired.yaml:4:5"  # mvt, the app that cannot also have it
     assert "app mvt claims the exclusive resource panda" in error.message
-    assert "app gps2vsl (desired.yaml:2:5)" in error.message
-    assert error.hint is not None and "remove one" in error.hint
+    assert "which app gps2vsl (desired.yaml:2:5) claims too" in error.message
+    assert error.hint is not None and "keep one of these apps" in error.hint
     with pytest.raises(ConfigError):
         owners(claims)
 
@@ -133,7 +133,8 @@ def test_three_claimants_are_all_named_and_further_conflicts_counted() -> None:
         refuse(found)
     message = caught.value.message
     assert caught.value.where == "desired.yaml:4:5"
-    assert "app gps2vsl (desired.yaml:2:5), app recorder (desired.yaml:5:5)" in message
+    assert "which apps gps2vsl (desired.yaml:2:5) and recorder (desired.yaml:5:5) claim " \
+        "too" in message
     assert "1 more resource(s) are claimed twice: service:can" in message
 
 
