@@ -9,14 +9,17 @@ model the rest of lpam uses.
 
 from __future__ import annotations
 
-from typing import Any
+import re
+from typing import Annotated, Any
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
     StrictBool,
     StrictStr,
+    WithJsonSchema,
     field_validator,
     model_validator,
 )
@@ -27,6 +30,25 @@ from schemas.service import Health, check_argv, check_launch
 
 CATALOG_FILE = "libpanda-apps.yaml"
 APP_FILES = ("install.sh", "uninstall.sh", "start.sh", "stop.sh", "description.txt", "service")
+PANDA = "panda"  # the resource the real catalogs' `owns_panda: true` claims
+SERVICE_PREFIX = "service:"  # a claimed unit, `service:can`; ':' keeps it apart from names
+_RESOURCE = re.compile(r"^[a-z0-9][a-z0-9-]{0,63}$")
+
+
+def check_resource_name(value: str) -> str:
+    """An exclusive resource's name (`panda`, `gps-serial`): lower-case letters, digits and
+    '-', so that one resource is never spelt two ways (`Panda`, `panda `) and slips past
+    the one-owner check."""
+    if not _RESOURCE.match(value):
+        raise ValueError(f"resource {value!r} is not a resource name: use lower-case letters, "
+                         "digits and '-' (such as panda, gps-serial), at most 64")
+    return value
+
+
+ResourceName = Annotated[
+    StrictStr, AfterValidator(check_resource_name),
+    WithJsonSchema({"type": "string", "pattern": _RESOURCE.pattern}),  # editors check it too
+]
 
 
 class _Strict(BaseModel):
@@ -79,6 +101,7 @@ class RawProperties(_Strict):
     """The paper's shape: a map under `properties:`."""
 
     owns_panda: StrictBool | None = None
+    resources: list[ResourceName] = Field(default_factory=list)
     dependencies: list[RawDependency] = Field(default_factory=list)
     ros_repositories: list[RawRosRepository] = Field(default_factory=list)
 
@@ -94,6 +117,10 @@ class RawApp(_Strict):
     path: StrictStr | None = None
     description: StrictStr | None = None
     properties: RawProperties | list[RawFlag] | None = None
+    resources: list[ResourceName] = Field(
+        default_factory=list,
+        description="exclusive resources the app claims (panda, gps-serial, …): no two "
+        "desired apps may claim one")
     dependencies: list[RawDependency] = Field(default_factory=list)
     ros_repositories: list[RawRosRepository] = Field(default_factory=list)
     command: list[StrictStr] | None = None
@@ -150,6 +177,10 @@ class CatalogApp(_Strict):
     description: str = ""
     service: str | None = None
     owns_panda: bool = False
+    resources: frozenset[str] = Field(
+        default=frozenset(), description="exclusive resources claimed in the catalog: "
+        "`resources:`, and `panda` for `owns_panda: true` (the `service` unit is added "
+        "where the app's folder is read)")
     apt: list[str] = Field(default_factory=list)
     pip3: list[str] = Field(default_factory=list)
     ros_repositories: list[RosRepository] = Field(default_factory=list)
@@ -190,10 +221,12 @@ def normalise(raw: RawCatalog) -> Catalog:
         deps = list(app.dependencies)
         ros = list(app.ros_repositories)
         owns = False
+        claims = set(app.resources)
         if isinstance(app.properties, RawProperties):
             deps += app.properties.dependencies
             ros += app.properties.ros_repositories
             owns = bool(app.properties.owns_panda)
+            claims.update(app.properties.resources)
         elif isinstance(app.properties, list):
             owns = any(bool(flag.owns_panda) for flag in app.properties)
         names: set[str] = set()
@@ -214,6 +247,7 @@ def normalise(raw: RawCatalog) -> Catalog:
                 path=app.path or app.name,
                 description=app.description or "",
                 owns_panda=owns,
+                resources=frozenset(claims | ({PANDA} if owns else set())),
                 apt=[d.apt for d in deps if d.apt],
                 pip3=[d.pip3 for d in deps if d.pip3],
                 ros_repositories=[

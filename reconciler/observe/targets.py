@@ -44,7 +44,13 @@ from reconciler.planning.model import (
     short,
 )
 from reconciler.unit import check_unit_name
-from schemas.catalog import CATALOG_FILE, Catalog, CatalogApp, RosRepository
+from schemas.catalog import (
+    CATALOG_FILE,
+    SERVICE_PREFIX,
+    Catalog,
+    CatalogApp,
+    RosRepository,
+)
 from schemas.desired import AppSpec, DesiredState, RepositorySpec
 from schemas.names import is_hex_commit, redact
 from schemas.service import DEFAULT_HEALTH_TIMEOUT, DEFAULT_SETTLE_SECONDS, Health
@@ -295,11 +301,12 @@ def _app_target(
     if user is not None:
         _check_user(spec.name, user)
     health = (spec.health or Health()).over(entry.health)
+    claims = entry.resources | ({SERVICE_PREFIX + service} if service else frozenset())
     return AppTarget(
         name=spec.name, repository=repo.key, commit=repo.commit, path=entry.path, tree=tree,
         params=dict(spec.params), service=service,
         command=tuple(entry.command) if entry.command is not None else None,
-        launch=entry.launch, user=user,
+        launch=entry.launch, user=user, resources=claims,
         health=HealthTarget(
             settle_seconds=DEFAULT_SETTLE_SECONDS if health.settle_seconds is None
             else health.settle_seconds,

@@ -137,7 +137,11 @@ class AppTarget:
 
     A script app runs by its lifecycle scripts, and `service` (from its `service` file)
     names the unit whose state says whether it runs. A scriptless app gives `command` or
-    `launch`, and lpam writes its unit (run as `user`)."""
+    `launch`, and lpam writes its unit (run as `user`).
+
+    `resources` are the exclusive resources it claims (planning/resources.py): the
+    catalog's, and `service:<unit>` for the unit its `service` file names. They shape
+    nothing of one app's plan; they only say which desired apps cannot run together."""
 
     name: str
     repository: str
@@ -151,6 +155,7 @@ class AppTarget:
     user: str | None = None
     health: HealthTarget = field(default_factory=HealthTarget)
     deps: Deps = field(default_factory=Deps)
+    resources: frozenset[str] = frozenset()
     proven: bool = False  # it proved good before (what a rollback returns to): no re-check
 
     @property
