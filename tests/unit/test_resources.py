@@ -66,7 +66,7 @@ def resolved(catalog: str, folders: dict[str, dict[str, str]], app: str) -> froz
     tree.update({name: (f"t-{name}", files) for name, files in folders.items()})
     store = MemoryStore(remotes={URL: {COMMIT: tree}})
     desired = DesiredState.model_validate(
-        {"version": 1, "repositories": [{"url": URL, "ref": COMMIT}], "app": {"name": app}})
+        {"version": 2, "repositories": [{"url": URL, "ref": COMMIT}], "apps": [{"name": app}]})
     targets = resolve(desired, base_dir=Path("."), store=store, fetch=Fetch.CHECKOUT,
                       default_user="root")
     assert targets.app is not None
