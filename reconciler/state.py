@@ -133,14 +133,13 @@ def settle(record: StateRecord, *, exit_code: ExitCode) -> StateRecord:
             stray = stray.model_copy(update={"stopped": True, "pending": None, "run": None})
         strays.append(stray)
     record = record.model_copy(update={"strays": strays})
-    app = record.app
-    if app is None or app.run is None or exit_code(app.run) != 0:
-        return record
-    if app.status == "uninstalling":
-        return record.model_copy(update={"app": None})
-    status = SETTLED.get(app.status, app.status)
-    settled: AppRecord = app.model_copy(update={"status": status, "run": None})
-    return record.model_copy(update={"app": settled})
+    for app in record.apps:
+        if app.run is None or exit_code(app.run) != 0:
+            continue
+        settled: AppRecord | None = None if app.status == "uninstalling" else \
+            app.model_copy(update={"status": SETTLED.get(app.status, app.status), "run": None})
+        record = record.with_app(app.name, settled)
+    return record
 
 
 def run_result(layout: Layout, run: str) -> int | None:

@@ -405,10 +405,10 @@ def _cutover_footer(record: StateRecord) -> list[str]:
     cutover = record.cutover
     if cutover is None:
         return []
-    back = cutover.previous.name if cutover.previous is not None else "no app"
+    back = ", ".join(a.name for a in cutover.previous) or "no app"
     rollback = cutover.rollback
     if rollback is not None:
-        failed = rollback.failed.name if rollback.failed is not None else "the new app"
+        failed = ", ".join(a.name for a in rollback.failed) or "the new app"
         return [printable(
             f"Rollback cut off: {failed} failed ({rollback.reason}) at {rollback.time}, and "
             f"the rollback to {back} did not finish: the next `lpam apply` finishes it.")]

@@ -11,9 +11,13 @@ it is loaded rather than when the step runs mid-cutover.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer
+
+ONE_APP_CLAIMS = frozenset({"panda"})
+"""What an app whose claims are not known holds: the one-app world's apps all owned the
+panda (schemas/catalog.py PANDA)."""
 
 
 class GenerationFields(BaseModel):
@@ -36,10 +40,30 @@ class GenerationFields(BaseModel):
     launch: str | None = Field(
         default=None, description="scriptless app: the roslaunch file lpam runs as its unit")
     user: str | None = Field(default=None, description="user a scriptless app runs as")
+    resources: list[str] | None = Field(
+        default=None, description="the exclusive resources it claims (`panda`, "
+        "`service:can`, …): no other installed app may claim one of them. None: not "
+        "known (installed before lpam knew claims), taken as `panda`, which every app "
+        "owned in the one-app world")
 
     @property
     def scriptless(self) -> bool:
         return self.command is not None or self.launch is not None
+
+    @model_serializer(mode="wrap")
+    def _claims_written(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """`resources` is written only when known: a plan's seal, a state record and a
+        generation's metadata written before apps named their claims stay what they
+        were (a saved plan's seal still matches)."""
+        data = handler(self)
+        if isinstance(data, dict) and data.get("resources", ()) is None:
+            del data["resources"]
+        return data
+
+    @property
+    def claims(self) -> frozenset[str]:
+        """The resources it holds while installed (`panda` when not known)."""
+        return frozenset(self.resources) if self.resources is not None else ONE_APP_CLAIMS
 
 
 class AppGeneration(GenerationFields):

@@ -16,17 +16,24 @@ whichever file or revision it came from), each repository's commit as of the las
 that succeeded (`applied`: a checkout only a failed apply moved is not what runs), and
 the last apply's result from its start (`in progress`) — so one that was cut off shows
 as such, not as the one before it.
+
+Version 5 keeps a set of installed apps (`apps`, in the order they were installed): a car
+may run a controller that owns the panda beside a recorder and a tracker (issue 22). A
+cutover returns to the set that ran before (`cutover.previous`), and a rollback names
+every app of the apply it undid (`cutover.rollback.failed`). The one-app view (`app`)
+stays for what the old tool's single-app world reads and writes: the record's only app.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.generation import GenerationFields
 
-CURRENT_VERSION = 4
+CURRENT_VERSION = 5
 
 AppStatus = Literal["installing", "installed", "starting", "running", "stopping", "uninstalling"]
 """Where the installed app's lifecycle stands. The -ing values are written *before* the
@@ -181,8 +188,10 @@ class Rollback(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    failed: AppRecord | None = Field(description="the app whose install, start or health "
-                                     "check failed (None: it never got installed)")
+    failed: list[AppRecord] = Field(
+        default_factory=list, description="the apps the apply installed or changed, as "
+        "they stood when its install, start or health check failed (empty: none got "
+        "installed)")
     reason: str = Field(description="what failed, as the apply reported it")
     health: bool = Field(default=False, description="it was a failed health check (exit 3)")
     time: str
@@ -195,8 +204,9 @@ class Cutover(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    previous: AppRecord | None = Field(
-        description="the good app that ran before (None: none; a failure removes the new one)")
+    previous: list[AppRecord] = Field(
+        default_factory=list, description="the good apps that ran before (empty: none; a "
+        "failure removes the new ones)")
     began: str
     rollback: Rollback | None = None
 
@@ -204,11 +214,11 @@ class Cutover(BaseModel):
 class StateRecord(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    version: Literal[4] = 4
+    version: Literal[5] = 5
     lineage: str | None = None
     serial: int = 0
     repositories: list[RepositoryRecord] = Field(default_factory=list)
-    app: AppRecord | None = None
+    apps: list[AppRecord] = Field(default_factory=list)
     strays: list[Stray] = Field(default_factory=list)
     last_apply: LastApply | None = None
     history: list[HistoryEntry] = Field(default_factory=list)
@@ -216,5 +226,50 @@ class StateRecord(BaseModel):
     cutover: Cutover | None = None
     desired: DesiredRef | None = None
 
+    if TYPE_CHECKING:  # `StateRecord(app=X)`, the one-app record (`_one_app` below)
+        def __init__(self, *, app: AppRecord | None = None, **data: Any) -> None: ...
+
     def repository(self, key: str) -> RepositoryRecord | None:
         return next((r for r in self.repositories if r.key == key), None)
+
+    def installed(self, name: str) -> AppRecord | None:
+        """The installed app of that name (names are unique on a car)."""
+        return next((a for a in self.apps if a.name == name), None)
+
+    def with_app(self, name: str, app: AppRecord | None) -> StateRecord:
+        """The record with the installed app `name` replaced by `app` (None: removed); a
+        new app is added last (the order apps were installed in)."""
+        apps = [a for a in self.apps if a.name != name]
+        if app is not None:
+            at = next((i for i, a in enumerate(self.apps) if a.name == name), len(apps))
+            apps.insert(at, app)
+        return self.model_copy(update={"apps": apps})
+
+    @property
+    def app(self) -> AppRecord | None:
+        """The one-app view: the record's only app (the first, when several are
+        installed: code that plans or shows several apps reads `apps`)."""
+        return self.apps[0] if self.apps else None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_app(cls, data: Any) -> Any:
+        """`StateRecord(app=X)` in code still makes the one-app record. Only in code: a
+        document read from disk carries its `version` and is upgraded by migrations."""
+        if isinstance(data, dict) and "app" in data and "version" not in data:
+            app = data["app"]
+            data = {k: v for k, v in data.items() if k != "app"}
+            data["apps"] = [] if app is None else [app]
+        return data
+
+    def model_copy(self, *, update: Mapping[str, Any] | None = None,
+                   deep: bool = False) -> StateRecord:
+        """`update={"app": X}` replaces the one-app view: the only app, or no app. On a
+        record of several apps it is refused (a bug: which app was meant?)."""
+        if update is not None and "app" in update:
+            update = dict(update)
+            app = update.pop("app")
+            if len(self.apps) > 1:
+                raise ValueError("a record of several apps is updated through `apps`")
+            update["apps"] = [] if app is None else [app]
+        return super().model_copy(update=update, deep=deep)

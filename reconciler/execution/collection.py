@@ -20,13 +20,12 @@ def prune(ctx: Context, *, keep: int = 3) -> None:
     good = [GenerationKey.of(h.app, h.generation) for h in record.history
             if h.result == "applied"]
     kept.update(list(dict.fromkeys(reversed(good)))[:keep])
-    if record.app is not None:
-        kept.add(GenerationKey.of(record.app.name, record.app.generation))
+    kept.update(GenerationKey.of(a.name, a.generation) for a in record.apps)
     folders = ctx.app_folders()
     folders.prune(kept)
     folders.keep_offered(record)
     _collect_dependencies(ctx)
-    pending = {f"{r}.exit" for r in [record.app.run if record.app else None,
+    pending = {f"{r}.exit" for r in [*(a.run for a in record.apps),
                                       *(s.run for s in record.strays)] if r}
     if ctx.layout.runs.is_dir():
         for result in ctx.layout.runs.iterdir():

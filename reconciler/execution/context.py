@@ -84,5 +84,6 @@ class Context:
                 f"cannot write the state record: {exc.strerror or exc}",
                 path=self.layout.state_record) from None
 
-    def save_app(self, app: AppRecord | None) -> None:
-        self.save(self.record.model_copy(update={"app": app}))
+    def save_app(self, name: str, app: AppRecord | None) -> None:
+        """Write the installed app `name` as `app` (None: it is uninstalled)."""
+        self.save(self.record.with_app(name, app))

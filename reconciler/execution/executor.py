@@ -70,7 +70,7 @@ def _execute(plan: Plan, ctx: Context, journal: AdvisoryJournal,
     # from its start that it is under way, and toward which desired state.
     ctx.save(begun(ctx) if record_result else ctx.record)
     previous = returns_to(ctx.record, ctx.app_folders().present()) if record_result \
-        else ctx.record.app
+        else list(ctx.record.apps)
     cut_off = pending(ctx.record) if record_result else None
     held: list[Held] = []
     try:
@@ -88,7 +88,7 @@ def _execute(plan: Plan, ctx: Context, journal: AdvisoryJournal,
 
 
 def _run(plan: Plan, ctx: Context, journal: AdvisoryJournal, progress: Callable[[str], None],
-         *, previous: AppRecord | None, record_result: bool, held: list[Held]) -> None:
+         *, previous: list[AppRecord], record_result: bool, held: list[Held]) -> None:
     """The steps in order; the gates are passed (and their locks added to `held`) just
     before the first cutover step, and the cutover is written down before it begins."""
     total = len(plan.steps)

@@ -18,14 +18,16 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from reconciler.errors import HealthError, LpamError, StateWriteError, StepError
 from reconciler.execution.context import Context
 from reconciler.execution.steps import run
 from reconciler.journal import Journal
-from reconciler.planning.lifecycle import app_steps, resume_text, target_of
+from reconciler.planning.ensemble import one_app_world, set_steps
+from reconciler.planning.graph import order
+from reconciler.planning.lifecycle import resume_text, target_of
 from reconciler.planning.model import GenerationKey
 from schemas.enums import StrEnum
 from schemas.plan import Phase, Step
@@ -102,20 +104,26 @@ def journalled(step: Step, label: str, ctx: Context, journal: AdvisoryJournal) -
 
 
 def returns_to(record: StateRecord, layout_generations: frozenset[GenerationKey]
-               ) -> AppRecord | None:
-    """The good app a failing apply goes back to: the one its interrupted predecessor
-    recorded; else the installed app if it proved good; else the newest good generation of
-    the history still on disk; else (nothing good is known) the installed app as it is."""
+               ) -> list[AppRecord]:
+    """The good apps a failing apply goes back to: the ones its interrupted predecessor
+    recorded; else each installed app if it proved good, else the newest good generation
+    of the history still on disk (of that app, when several are installed); else (nothing
+    good is known) the installed app as it is."""
     if record.cutover is not None:
-        return record.cutover.previous
-    app = record.app
-    if app is None or app.good:
-        return app
-    for entry in reversed(record.history):
-        if entry.result == "applied" and \
-                GenerationKey.of(entry.app, entry.generation) in layout_generations:
-            return entry.installed()
-    return app
+        return list(record.cutover.previous)
+    several = len(record.apps) > 1
+    back = []
+    for app in record.apps:
+        entry = None if app.good else next(
+            (e for e in reversed(record.history) if e.result == "applied"
+             and (e.app == app.name or not several)
+             and GenerationKey.of(e.app, e.generation) in layout_generations), None)
+        back.append(app if entry is None else entry.installed())
+    return back
+
+
+def names(apps: Sequence[AppRecord]) -> str:
+    return ", ".join(a.name for a in apps)
 
 
 def begun(ctx: Context) -> StateRecord:
@@ -136,7 +144,7 @@ def interrupted(ctx: Context) -> None:
         ctx.save(ctx.record.model_copy(update={"last_apply": last}))
 
 
-def begin_cutover(ctx: Context, previous: AppRecord | None) -> None:
+def begin_cutover(ctx: Context, previous: list[AppRecord]) -> None:
     """Written before the first cutover step; an earlier one (cut off) is kept."""
     if ctx.record.cutover is None:
         began = ctx.clock().isoformat(timespec="seconds")
@@ -164,27 +172,19 @@ class RollbackResult:
     said: str = ""  # what happened, to add to the failure's message
 
 
-def roll_back(failed: Step, exc: LpamError, previous: AppRecord | None, ctx: Context,
+def rollsteps_back(failed: Step, exc: LpamError, previous: list[AppRecord], ctx: Context,
               journal: AdvisoryJournal, progress: Progress, *, record_result: bool
               ) -> RollbackResult:
-    """After a failed cutover step, go back to the app that ran before. The rollback is
-    written down before it begins."""
+    """After a failed cutover step, go back to the apps that ran before: every change of
+    the apply is undone (planning/ensemble.py orders it by what the apps claim). The
+    rollback is written down before it begins."""
     if failed.phase is not Phase.CUTOVER:
         return RollbackResult(Outcome.NONE)
-    target = None if previous is None else target_of(previous)
-    # The car must not be left with no app: the previous one is started again unless an
-    # operator had stopped it (after a crash its status may say `installing` though it ran).
-    start = previous is None or not previous.held
-    record, app = ctx.record, ctx.record.app
-    if app is not None and previous is not None and app.status == "stopping" \
-            and app.generation == previous.generation:
-        # its stop.sh just failed: the old app is brought back up, not stopped again
-        record = record.model_copy(update={"app": app.model_copy(update={"status": "starting"})})
-    steps = app_steps(record, target, ctx.app_folders().present(), start=start,
-                      verify=False)
+    steps = steps_back(ctx.record, previous, ctx.app_folders().present())
     if not steps:
         return RollbackResult(Outcome.NONE)
-    what = f"rolling back to {previous.name}" if previous else "removing the half-installed app"
+    what = f"rolling back to {names(previous)}" if previous else \
+        "removing the half-installed app"
     try:
         if record_result and pending(ctx.record) is None:
             _note_rollback(ctx, previous, f"step {failed.id} failed: {exc.message}",
@@ -196,25 +196,51 @@ def roll_back(failed: Step, exc: LpamError, previous: AppRecord | None, ctx: Con
     except LpamError as again:
         return RollbackResult(Outcome.FAILED, f" {what.capitalize()} failed too: "
                               f"{again.message}.")
-    return RollbackResult(Outcome.BACK, f" Rolled back to {previous.name}." if previous
+    return RollbackResult(Outcome.BACK, f" Rolled back to {names(previous)}." if previous
                           else " Removed the new app again.")
 
 
-def _note_rollback(ctx: Context, previous: AppRecord | None, reason: str, *,
+def steps_back(record: StateRecord, previous: list[AppRecord],
+          generations: frozenset[GenerationKey]) -> list[Step]:
+    """The steps back to `previous`. The car must not be left with no app: each previous
+    app is started again unless an operator had stopped it (after a crash its status may
+    say `installing` though it ran); one whose stop.sh just failed is brought back up,
+    not stopped again."""
+    for app in record.apps:
+        before = next((p for p in previous if p.name == app.name), None)
+        if before is not None and app.status == "stopping" and \
+                app.generation == before.generation:
+            record = record.with_app(app.name, app.model_copy(update={"status": "starting"}))
+    targets = [target_of(p) for p in previous]
+    held = {p.name for p in previous if p.held}
+    steps = set_steps(record, targets, generations, verify=False, stopped=held)
+    return steps if one_app_world(record, targets) else order(steps, chained=False)
+
+
+def changed(record: StateRecord, previous: list[AppRecord]) -> list[AppRecord]:
+    """The installed apps an apply changed: not as they were before it (its failures)."""
+    before = {(p.name, p.generation, tuple(sorted(p.params.items()))) for p in previous}
+    return [a for a in record.apps
+            if (a.name, a.generation, tuple(sorted(a.params.items()))) not in before]
+
+
+def _note_rollback(ctx: Context, previous: list[AppRecord], reason: str, *,
                    health: bool) -> None:
     cutover = ctx.record.cutover or Cutover(
         previous=previous, began=ctx.clock().isoformat(timespec="seconds"))
-    rollback = Rollback(failed=ctx.record.app, reason=reason, health=health,
+    failed = ctx.record.apps if len(ctx.record.apps) <= 1 else changed(ctx.record, previous)
+    rollback = Rollback(failed=failed, reason=reason, health=health,
                         time=ctx.clock().isoformat(timespec="seconds"))
     ctx.save(ctx.record.model_copy(
         update={"cutover": cutover.model_copy(update={"rollback": rollback})}))
 
 
-def fail(step: Step, exc: LpamError, previous: AppRecord | None, ctx: Context,
+def fail(step: Step, exc: LpamError, previous: list[AppRecord], ctx: Context,
          journal: AdvisoryJournal, progress: Progress, *, record_result: bool) -> LpamError:
     """Roll back if the cutover had begun, record how the apply ended; the error to raise."""
-    attempted = ctx.record.app
-    rolled = roll_back(step, exc, previous, ctx, journal, progress,
+    attempted = ctx.record.apps if len(ctx.record.apps) <= 1 else \
+        changed(ctx.record, previous)
+    rolled = rollsteps_back(step, exc, previous, ctx, journal, progress,
                        record_result=record_result)
     back = rolled.outcome is Outcome.BACK
     message = f"step {step.id} failed: {exc.message}.{rolled.said} {where(step.phase, ctx)}"
@@ -223,7 +249,7 @@ def fail(step: Step, exc: LpamError, previous: AppRecord | None, ctx: Context,
         if record_result:
             earlier = pending(ctx.record)
             finish(ctx, "rolled back" if back else "failed", message,
-                   failed=(earlier.failed if earlier else attempted) if back else None)
+                   failed=(earlier.failed if earlier else attempted) if back else [])
     except StateWriteError as unwritable:
         return unwritable_error(ctx, unwritable)
     if isinstance(exc, StateWriteError):
@@ -232,10 +258,10 @@ def fail(step: Step, exc: LpamError, previous: AppRecord | None, ctx: Context,
     return error(message, hint=hint, details=exc.details)
 
 
-def finish_pending(ctx: Context, rollback: Rollback, previous: AppRecord | None) -> LpamError:
+def finish_pending(ctx: Context, rollback: Rollback, previous: list[AppRecord]) -> LpamError:
     """A rollback that a fault cut off is finished: record it as the apply that began it
     would have, and report the failure that caused it (never success)."""
-    back = f"rolled back to {previous.name}" if previous else "removed the new app again"
+    back = f"rolled back to {names(previous)}" if previous else "removed the new app again"
     message = (f"{rollback.reason}. The rollback was cut off by a fault; this run finished "
                f"it: {back}. {where(Phase.CUTOVER, ctx)}")
     try:
@@ -256,16 +282,21 @@ def hold_after(record: StateRecord, result: ApplyResult) -> Hold | None:
 
 
 def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
-           failed: AppRecord | None = None) -> None:
-    """Record how the apply ended, and the generation it made current (history). A
-    generation enters the history as applied only once it proved good. The cutover ends
-    with the apply, unless it failed mid-way: then the next run still needs it."""
+           failed: Sequence[AppRecord] = ()) -> None:
+    """Record how the apply ended, and the generations it made current (history: the
+    entries of one apply share its time, a set). A generation enters the history as
+    applied only once it proved good. The cutover ends with the apply, unless it failed
+    mid-way: then the next run still needs it."""
     when = ctx.clock().isoformat(timespec="seconds")
     history = list(ctx.record.history)
-    for app, outcome in ((failed, "rolled back"), (ctx.record.app, "applied")):
-        if app is None or (outcome == "applied" and (result != "applied" or not app.good)):
+    several = len(ctx.record.apps) > 1 or len(failed) > 1
+    outcomes = [*((a, "rolled back") for a in failed),
+                *((a, "applied") for a in ctx.record.apps)]
+    for app, outcome in outcomes:
+        if outcome == "applied" and (result != "applied" or not app.good):
             continue
-        last = next((h for h in reversed(history) if h.result == "applied"), None)
+        last = next((h for h in reversed(history) if h.result == "applied"
+                     and (h.app == app.name or not several)), None)
         if outcome == "applied" and last is not None and \
                 (last.generation, last.params) == (app.generation, app.params):
             continue
@@ -287,12 +318,12 @@ def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
 def where(phase: Phase, ctx: Context) -> str:
     if phase is Phase.PREPARE:
         return "Nothing was changed on the running app."
-    app = ctx.record.app
-    if app is None:
+    if not ctx.record.apps:
         return "No app is installed now."
-    state = {"running": "running", "installed": "installed, not running"}.get(
-        app.status, f"{app.status} when the script failed")
-    return f"Installed now: {app.name} ({state})."
+    states = [f"{app.name} (" + {"running": "running", "installed": "installed, not running"}
+              .get(app.status, f"{app.status} when the script failed") + ")"
+              for app in ctx.record.apps]
+    return f"Installed now: {', '.join(states)}."
 
 
 def unwritable_error(ctx: Context, exc: StateWriteError) -> StateWriteError:

@@ -51,7 +51,16 @@ def observe(layout: Layout, store: Store, targets: Targets,
         stray_live=_taken_over(layout, record, services),
         deps=dependencies(layout, targets.app, record, deps),
         adopt=adoptable(layout, store, record, targets) if record.strays else None,
+        lives=lives(record, services),
+        deps_by={a.name: d for a in targets.apps[1:]
+                 for d in [dependencies(layout, a, record, deps)] if d is not None},
     )
+
+
+def lives(record: StateRecord, services: Services | None) -> dict[str, UnitState]:
+    """Each installed app's unit now, by app name (none without a manager to ask)."""
+    found = {a.name: live_state(a.service, services) for a in record.apps}
+    return {name: state for name, state in found.items() if state is not None}
 
 
 def dependencies(layout: Layout, app: AppTarget | None, record: StateRecord,
@@ -67,9 +76,9 @@ def dependencies(layout: Layout, app: AppTarget | None, record: StateRecord,
         workspace = ports.workspace(Path(wanted.workspace.path), wanted.workspace.user)
         ros_built = key is not None and workspace.built(key)
     installed: dict[str, str] = {}
-    if record.app is not None:
-        meta = generations.read_meta(
-            layout.generation_meta(record.app.name, record.app.generation))
+    now = record.installed(app.name) or (record.app if len(record.apps) == 1 else None)
+    if now is not None:
+        meta = generations.read_meta(layout.generation_meta(now.name, now.generation))
         installed = dict(meta.ros) if meta is not None else {}
     return DepsObserved(
         apt_missing=tuple(ports.packages.missing(wanted.apt)) if wanted.apt else (),
@@ -95,7 +104,7 @@ def _taken_over(layout: Layout, record: StateRecord,
 def asks_manager(record: StateRecord) -> bool:
     """Whether observing needs the service manager: only an installed app or an app lpam
     took over has a unit to ask about, so a plan of repositories alone need not load one."""
-    return record.app is not None or any(
+    return bool(record.apps) or any(
         s.folder is not None and not s.stopped for s in record.strays)
 
 

@@ -87,13 +87,13 @@ def resolve(
     repos = _parallel(lambda s: _resolve_repo(s, base_dir, store, fetch, desired, notice),
                       specs, fetch)
     workspace = workspace_target(desired, root, default_user)
-    app = None
-    if desired.app is not None:
-        bare: set[str] = set()  # repositories with no catalog, as reading them found
-        app = _resolve_app(desired, repos, store, default_user, fetch, workspace, notice,
-                           bare)
-        repos = [replace(r, no_catalog=True) if r.key in bare else r for r in repos]
-    return Targets(repositories=tuple(repos), app=app)
+    apps = []
+    bare: set[str] = set()  # repositories with no catalog, as reading them found
+    for spec in desired.apps:
+        apps.append(_resolve_app(desired, spec, repos, store, default_user, fetch,
+                                 workspace, notice, bare))
+    repos = [replace(r, no_catalog=True) if r.key in bare else r for r in repos]
+    return Targets(tuple(repos), apps=tuple(apps))
 
 
 def workspace_target(desired: DesiredState, root: Path,
@@ -207,11 +207,10 @@ def _catalog(store: Resolving, repo: RepoTarget) -> Catalog | None:
 
 
 def _resolve_app(
-    desired: DesiredState, repos: list[RepoTarget], store: Resolving, default_user: str | None,
-    fetch: Fetch, workspace: WorkspaceTarget, notice: Notice, bare_keys: set[str],
+    desired: DesiredState, spec: AppSpec, repos: list[RepoTarget], store: Resolving,
+    default_user: str | None, fetch: Fetch, workspace: WorkspaceTarget, notice: Notice,
+    bare_keys: set[str],
 ) -> AppTarget:
-    spec = desired.app
-    assert spec is not None
     candidates = _candidates(desired, spec, repos)
     found: list[tuple[RepoTarget, CatalogApp]] = []
     unknown: list[RepoTarget] = []

@@ -7,6 +7,7 @@ every no-op says why nothing needs doing, so a user reading the plan can trust i
 from __future__ import annotations
 
 from reconciler.planning import dependencies
+from reconciler.planning.ensemble import one_app_world, pairs
 from reconciler.planning.lifecycle import same_generation, strays_refreshed
 from reconciler.planning.model import (
     UNKNOWN,
@@ -39,7 +40,11 @@ def diff(targets: Targets, observed: Observed) -> list[Change]:
         for rec in sorted(observed.record.repositories, key=lambda r: r.key)
         if rec.key not in wanted
     ]
-    changes += dependencies.changes(targets.app, observed.deps)
+    for number, app in enumerate(targets.apps):
+        changes += dependencies.changes(app, observed.deps_of(app, number == 0))
+    if not one_app_world(observed.record, targets.apps):
+        changes += _strays(strays_refreshed(observed.record, observed.stray_live))
+        return _once(changes + _apps(targets, observed))
     if observed.adopt is not None and targets.app is not None:
         strays = strays_refreshed(observed.record, observed.stray_live)
         others = [s for s in strays.strays if s.name != observed.adopt]
@@ -49,6 +54,32 @@ def diff(targets: Targets, observed: Observed) -> list[Change]:
     changes += _strays(strays_refreshed(observed.record, observed.stray_live))
     changes.append(_app(targets.app, observed.record.app, observed.generations, observed.live))
     return changes
+
+
+def _once(changes: list[Change]) -> list[Change]:
+    """Two apps that need one package or one ROS repository: one change says so."""
+    once: dict[str, Change] = {}
+    for change in changes:
+        once.setdefault(change.address, change)
+    return list(once.values())
+
+
+def _apps(targets: Targets, observed: Observed) -> list[Change]:
+    """Several apps: one change per app (`app.<name>`), each against the installed app of
+    its name; one that leaves says which arriving app takes over what it claims."""
+    found = []
+    for rec, t in pairs(observed.record, targets.apps):
+        name = t.name if t is not None else rec.name if rec is not None else ""
+        change = _app(t, rec, observed.generations, observed.live_of(name))
+        if t is None and rec is not None:
+            heirs = [a.name for a in targets.apps if a.resources & rec.claims]
+            reason = f"app {rec.name} is no longer desired: stopped and uninstalled"
+            if heirs:
+                reason += (f" before {', '.join(heirs)}, which claims what it claims "
+                           f"({', '.join(sorted(rec.claims))}), is installed")
+            change = change.model_copy(update={"reason": reason})
+        found.append(change.model_copy(update={"address": f"app.{name}"}))
+    return found
 
 
 def _adoption(t: AppTarget, stray: str) -> Change:

@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING
 
 from reconciler.errors import PlanError
 from reconciler.planning import dependencies
-from reconciler.planning.lifecycle import app_steps, refreshed, step_id
+from reconciler.planning.ensemble import one_app_world, set_steps
+from reconciler.planning.lifecycle import refreshed, step_id
 from reconciler.planning.model import Observed, Targets
 from schemas.plan import Action, Change, CheckoutStep, Phase, RemoveStep, Step, StepKind
 
@@ -41,19 +42,30 @@ def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> li
             key = change.address.removeprefix("repository.")
             steps.append(RemoveStep(id=step_id(StepKind.REMOVE, key), phase=Phase.CLEANUP,
                                     key=key))
-    steps += dependencies.steps(targets.app, observed.deps)
-    steps += app_steps(refreshed(observed.record, observed.live, observed.stray_live),
-                       targets.app, observed.generations, adopt=observed.adopt)
-    return order(steps)
+    for number, app in enumerate(targets.apps):
+        steps += dependencies.steps(app, observed.deps_of(app, number == 0))
+    record = refreshed(observed.record, observed.live, observed.stray_live, observed.lives)
+    steps += set_steps(record, targets.apps, observed.generations, adopt=observed.adopt)
+    return order(_once(steps), chained=one_app_world(record, targets.apps))
 
 
-def order(steps: Iterable[Step]) -> list[Step]:
-    """Topologically sort the steps under the phase and cutover rules; stable for equal ranks."""
+def _once(steps: list[Step]) -> list[Step]:
+    """Two apps that need the same preparation (one ROS build) share its step."""
+    once: dict[str, Step] = {}
+    for step in steps:
+        once.setdefault(step.id, step)
+    return list(once.values())
+
+
+def order(steps: Iterable[Step], *, chained: bool = True) -> list[Step]:
+    """Topologically sort the steps under the phase and cutover rules; stable for equal ranks.
+    `chained`: the cutover is one chain in plan order (the one-app world); else each
+    app's steps say what they need (planning/ensemble.py)."""
     steps = list(steps)
     index = {s.id: i for i, s in enumerate(steps)}
     if len(index) != len(steps):
         raise PlanError("two steps of the plan have the same id; this is a bug in lpam")
-    if not any(s.needs for s in steps):
+    if chained and not any(s.needs for s in steps):
         # Without `needs`, the rules' graph is the phases' total order plus the cutover chain
         # in plan order, and its lexicographic topological order is exactly this sort
         # (tests/unit/test_graph.py checks it against the graph). It spares a plan of
@@ -67,8 +79,9 @@ def order(steps: Iterable[Step]) -> list[Step]:
         for b in steps:
             if _PHASE_ORDER[a.phase] < _PHASE_ORDER[b.phase]:
                 graph.add_edge(a.id, b.id)
-    cutover = [s.id for s in steps if s.phase is Phase.CUTOVER]
-    graph.add_edges_from(zip(cutover, cutover[1:]))
+    if chained:
+        cutover = [s.id for s in steps if s.phase is Phase.CUTOVER]
+        graph.add_edges_from(zip(cutover, cutover[1:]))
     for s in steps:
         graph.add_edges_from((need, s.id) for need in s.needs)
     return sort_graph(graph, {s.id: s for s in steps}, index)

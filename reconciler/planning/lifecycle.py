@@ -114,7 +114,7 @@ def app_steps(
     if adopt is not None and new is not None and record.app is None:
         return _adopted(record, new, adopt, generations, start=start, verify=verify)
     old = record.app
-    steps = _stray_steps(record)
+    steps = stray_steps(record)
     if new is not None and old is not None and same_generation(old, new, generations):
         target = f"{old.name}@{old.generation}"
         if keeps(old, new, generations):
@@ -146,7 +146,7 @@ def _adopted(record: StateRecord, new: AppTarget, adopt: str,
     stray = next(s for s in record.strays if s.name == adopt)
     assert stray.folder is not None, "observe/adoption.py adopts only an app LPAM installed"
     others = record.model_copy(update={"strays": [s for s in record.strays if s is not stray]})
-    steps = _stray_steps(others)
+    steps = stray_steps(others)
     gen = new.generation or UNKNOWN
     target = f"{new.name}@{gen}"
     if GenerationKey.of(new.name, gen) not in generations:
@@ -220,7 +220,7 @@ def _checks(health: HealthTarget) -> bool:
     return health.settle_seconds > 0 or health.command is not None or bool(health.can_ids)
 
 
-def _stray_steps(record: StateRecord) -> list[Step]:
+def stray_steps(record: StateRecord) -> list[Step]:
     steps: list[Step] = []
     for stray in record.strays:
         found = "taken over from LPAM" if stray.folder is not None else "found on disk"
@@ -256,7 +256,8 @@ def generation_of(new: AppTarget, gen: str) -> AppGeneration:
         ros={r.name: r.commit or UNKNOWN for r in deps.ros} if ros else {},
         ros_build=(deps.ros_build or UNKNOWN) if ros else None,
         ros_workspace=deps.workspace.path if ros and deps.workspace else None,
-        ros_user=deps.workspace.user if ros and deps.workspace else None)
+        ros_user=deps.workspace.user if ros and deps.workspace else None,
+        resources=sorted(new.resources))
 
 
 def target_of(app: AppRecord) -> AppTarget:
@@ -266,21 +267,29 @@ def target_of(app: AppRecord) -> AppTarget:
                      service=app.service,
                      command=tuple(app.command) if app.command is not None else None,
                      launch=app.launch, user=app.user, health=HealthTarget(settle_seconds=0),
-                     proven=app.good)
+                     resources=app.claims, proven=app.good)
 
 
 def refreshed(record: StateRecord, live: UnitState | None,
-              stray_live: dict[str, UnitState] | None = None) -> StateRecord:
+              stray_live: dict[str, UnitState] | None = None,
+              lives: dict[str, UnitState] | None = None) -> StateRecord:
     """The record as the service manager sees the app now (Terraform's refresh: the record
     stays the prior state, this is the one planned from). An app recorded as running whose
     unit the manager knows and reports not active has stopped behind lpam's back (a crash,
     a reboot, someone's `systemctl stop`): it is planned as installed, so it is started.
     One recorded as installed whose unit is active may hold the bus: planned as running,
-    so it is stopped before anything else is installed."""
+    so it is stopped before anything else is installed. `live` is the one-app world's
+    only app's unit; `lives` each app's, by name."""
     record = strays_refreshed(record, stray_live or {})
-    app = record.app
-    if app is None or live is None or not live.known:
-        return record
+    for app in record.apps:
+        seen = (lives or {}).get(app.name, live if len(record.apps) == 1 else None)
+        record = record.with_app(app.name, _refreshed_app(app, seen))
+    return record
+
+
+def _refreshed_app(app: AppRecord, live: UnitState | None) -> AppRecord:
+    if live is None or not live.known:
+        return app
     if live.running and not live.supervised and app.status in ("running", "installed"):
         # its manager died and left it running: stopped (the manager's successor finds
         # and ends what it ran), then started again under it unless an operator stopped it
@@ -290,8 +299,8 @@ def refreshed(record: StateRecord, live: UnitState | None,
     elif app.status == "installed" and live.running:
         status = "running"  # started behind lpam's back, or a stop that did not stop it
     else:
-        return record
-    return record.model_copy(update={"app": app.model_copy(update={"status": status})})
+        return app
+    return app.model_copy(update={"status": status})
 
 
 def operator_steps(record: StateRecord, action: OperatorAction,
@@ -335,19 +344,24 @@ _NEXT = {
 def resume_text(record: StateRecord) -> str:
     """What the record shows and what the next apply of the same desired state does from
     it, in a sentence or two: said when lpam had to stop where it stood."""
-    app, cutover = record.app, record.cutover
-    back = None if cutover is None else cutover.previous
-    back_to = f"it returns to {back.name}" if back is not None else "it removes it again"
-    if app is None:
+    cutover = record.cutover
+    back = ", ".join(a.name for a in cutover.previous) if cutover is not None else ""
+    back_to = f"it returns to {back}" if back else "it removes it again"
+    if not record.apps:
         text = "The record shows no app installed: the next apply installs the desired one."
     else:
-        text = f"The record shows {app.name} ({app.generation}): it {_NEXT[app.status]}."
-        if app.held:
-            text += " An operator stopped it: it stays stopped."
-        elif not app.good:
-            text += (" It has not passed its health check yet: the next apply checks it for "
-                     f"a whole settle window, and if it fails, {back_to}.")
+        text = " ".join(_app_resume(app, back_to) for app in record.apps)
     if cutover is not None and cutover.rollback is not None:
-        target = back.name if back is not None else "no app"
-        text += f" A rollback to {target} was under way: the next apply finishes it first."
+        text += f" A rollback to {back or 'no app'} was under way: the next apply finishes " \
+            "it first."
+    return text
+
+
+def _app_resume(app: AppRecord, back_to: str) -> str:
+    text = f"The record shows {app.name} ({app.generation}): it {_NEXT[app.status]}."
+    if app.held:
+        text += " An operator stopped it: it stays stopped."
+    elif not app.good:
+        text += (" It has not passed its health check yet: the next apply checks it for "
+                 f"a whole settle window, and if it fails, {back_to}.")
     return text

@@ -185,10 +185,24 @@ class AppTarget:
         return None if self.path is None else app_folder(self.path)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class Targets:
+    """The desired repositories and apps, resolved. `Targets(repos, app)` is the one-app
+    world (desired state version 1); `apps=` gives several."""
+
     repositories: tuple[RepoTarget, ...]
-    app: AppTarget | None
+    apps: tuple[AppTarget, ...]
+
+    def __init__(self, repositories: tuple[RepoTarget, ...], app: AppTarget | None = None,
+                 *, apps: tuple[AppTarget, ...] | None = None) -> None:
+        object.__setattr__(self, "repositories", repositories)
+        object.__setattr__(self, "apps", apps if apps is not None else
+                           (() if app is None else (app,)))
+
+    @property
+    def app(self) -> AppTarget | None:
+        """The first desired app (the only one in the one-app world)."""
+        return self.apps[0] if self.apps else None
 
 
 @dataclass(frozen=True)
@@ -212,6 +226,20 @@ class Observed:
     stray_live: dict[str, UnitState] = field(default_factory=dict)  # LPAM's app's unit
     deps: DepsObserved | None = None  # the desired app's dependencies on this machine
     adopt: str | None = None  # the app LPAM installed that is the desired one as it is
+    lives: dict[str, UnitState] = field(default_factory=dict)  # each installed app's unit
+    deps_by: dict[str, DepsObserved] = field(default_factory=dict)  # each desired app's
+
+    def live_of(self, name: str) -> UnitState | None:
+        """The unit of the installed app `name` (`live`: the one-app world's only app)."""
+        if name in self.lives:
+            return self.lives[name]
+        app = self.record.app
+        return self.live if app is not None and app.name == name else None
+
+    def deps_of(self, app: AppTarget, first: bool) -> DepsObserved | None:
+        """The dependencies of the desired app `app` on this machine (`deps`: the first
+        desired app's, as the one-app world observed them)."""
+        return self.deps_by.get(app.name, self.deps if first else None)
 
 
 @dataclass(frozen=True)

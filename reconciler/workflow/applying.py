@@ -17,7 +17,7 @@ from reconciler.layout import KEEP_GENERATIONS
 from reconciler.workflow.defaults import LOCK_TIMEOUT, SCRIPT_TIMEOUT
 from reconciler.workflow.events import Planned, Progress, Report
 from reconciler.workflow.machine import Machine
-from reconciler.workflow.planning import prepare, refuse_several_apps
+from reconciler.workflow.planning import prepare
 
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
@@ -64,7 +64,6 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
     from reconciler.observe.targets import Fetch
     from reconciler.planning.plan import unknown_values
 
-    refuse_several_apps(desired, path)  # before the lock: nothing waits to be refused
     with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         if options.release:
             _release(machine, report)

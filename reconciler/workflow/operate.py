@@ -95,9 +95,9 @@ def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine) -> 
         # The operator's wish is written first, so that a fault cannot undo it: the next
         # run carries out a stop (or a start) that was asked for and cut off.
         if action == OperatorAction.STOP:
-            ctx.save_app(app.model_copy(update={"held": True}))
+            ctx.save_app(app.name, app.model_copy(update={"held": True}))
         elif app.held:
-            ctx.save_app(app.model_copy(update={"held": False}))
+            ctx.save_app(app.name, app.model_copy(update={"held": False}))
         steps = operator_steps(ctx.record, action, generations.present(ctx.layout))
         if steps:
             execute(_plan(ctx, steps, f"{action} {app.name}", ctx.clock()), ctx,

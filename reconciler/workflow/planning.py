@@ -21,7 +21,7 @@ from reconciler.workflow.machine import Machine
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
     from reconciler.observe.targets import Fetch
-    from reconciler.planning.model import Observed
+    from reconciler.planning.model import Observed, Targets
     from schemas.desired import DesiredState
     from schemas.plan import Plan
     from schemas.record import StateRecord
@@ -37,7 +37,6 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
     if offline and out is not None:
         raise LpamError("an --offline plan cannot be saved: it may hold values known only "
                         "after a fetch", hint="drop --offline to save an exact plan")
-    refuse_several_apps(desired, path)
     if offline:
         return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
                        busy=holder(machine.layout))[1]
@@ -78,7 +77,6 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     from reconciler.planning.plan import make_plan
     from reconciler.state import read_record
 
-    refuse_several_apps(desired, path)  # every plan and apply passes here
     layout = machine.layout
     store = machine.store()
     record = read_record(layout)
@@ -90,8 +88,9 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
                       default_user=libpanda_user(layout), root=layout.root,
                       notice=lambda text: report(Note(text)))
+    refuse_shared_claims(desired, path, targets)  # every plan and apply passes here
     report(Phase("resolve"))
-    needs = targets.app is not None and bool(targets.app.deps.how)  # apt, pip or ROS
+    needs = any(a.deps.how for a in targets.apps)  # apt, pip or ROS
     observed = observe(layout, store, targets,
                        machine.services if asks_manager(record) else None,
                        machine.deps if needs else None)
@@ -108,23 +107,18 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     return store, made
 
 
-def refuse_several_apps(desired: DesiredState, path: Path) -> None:
-    """A desired state of several apps is a valid document (`lpam validate` accepts it),
-    but this lpam's engine installs and runs one app: it is refused before anything is
-    resolved or locked, at the second app, until the planner of issue 22 exists. (The
-    model's `app` is the first of several: nothing may act on it.)"""
-    if len(desired.apps) < 2:
-        return
+def refuse_shared_claims(desired: DesiredState, path: Path, targets: Targets) -> None:
+    """Two desired apps that claim one exclusive resource (planning/resources.py) are
+    refused once their catalogs are read, before anything on the car changes, at the
+    second app's place in the desired state and naming the first's."""
     from reconciler.documents import app_place
-    from reconciler.errors import ConfigError
+    from reconciler.planning.resources import Claim, Where, conflicts, refuse
 
-    where, line, column = app_place(desired, 1)
-    names = ", ".join(a.name for a in desired.apps)
-    raise ConfigError(
-        f"the desired state lists {len(desired.apps)} apps ({names}): running several apps "
-        "at once is not available yet in this lpam", path=where or path, line=line,
-        column=column, hint="keep one app under `apps:` (several apps at once: issue 22's "
-        "planner, to come)")
+    claims = []
+    for index, app in enumerate(targets.apps):
+        where, line, column = app_place(desired, index)
+        claims.append(Claim(app.name, Where(where or path, line, column), app.resources))
+    refuse(conflicts(claims))
 
 
 def _stop_released(observed: Observed, desired: DesiredState, report: Report) -> Observed:
@@ -136,14 +130,15 @@ def _stop_released(observed: Observed, desired: DesiredState, report: Report) ->
     from reconciler.workflow.operate import desired_fingerprint
 
     record = observed.record
-    app, applied = record.app, record.desired
-    if app is None or not app.held or applied is None or \
-            applied.fingerprint == desired_fingerprint(desired):
+    applied = record.desired
+    if applied is None or applied.fingerprint == desired_fingerprint(desired):
         return observed
-    report(Note(f"the operator's stop of {app.name} ends: the desired state changed since "
-                f"it was last applied (from {applied.source})"))
-    released = record.model_copy(update={"app": app.model_copy(update={"held": False})})
-    return replace(observed, record=released)
+    for app in record.apps:
+        if app.held:
+            report(Note(f"the operator's stop of {app.name} ends: the desired state changed "
+                        f"since it was last applied (from {applied.source})"))
+            record = record.with_app(app.name, app.model_copy(update={"held": False}))
+    return replace(observed, record=record)
 
 
 def interrupted_note(interrupted: tuple[str, ...], made: Plan) -> str:
@@ -190,21 +185,20 @@ def _finishing_plan(machine: Machine, record: StateRecord, report: Report) -> Pl
     to the good app it was returning to, by the rules of any plan, whatever the desired
     state says now (the next run goes on from there)."""
     from reconciler import generations
-    from reconciler.observe.machine import live_state
-    from reconciler.planning.lifecycle import app_steps, refreshed, target_of
+    from reconciler.execution.recovery import names, steps_back
+    from reconciler.observe.machine import lives
+    from reconciler.planning.lifecycle import refreshed
     from reconciler.planning.plan import sealed
     from schemas.plan import Action, Change
 
     assert record.cutover is not None and record.cutover.rollback is not None
     previous, rollback = record.cutover.previous, record.cutover.rollback
-    failed = rollback.failed.name if rollback.failed is not None else "the new app"
-    back = f"to {previous.name}" if previous is not None else "removing the new app"
+    failed = names(rollback.failed) if rollback.failed else "the new app"
+    back = f"to {names(previous)}" if previous else "removing the new app"
     reason = (f"the rollback {back} after {failed} failed ({rollback.reason}) was cut off "
               "by a fault: finished, and the failure recorded")
-    live = live_state(record.app.service if record.app else None, machine.services)
-    steps = app_steps(refreshed(record, live), None if previous is None else target_of(previous),
-                      generations.present(machine.layout),
-                      start=previous is None or not previous.held, verify=False)
+    steps = steps_back(refreshed(record, None, lives=lives(record, machine.services)),
+                       previous, generations.present(machine.layout))
     report(Note(f"a rollback {back} was cut off by a fault; the steps below finish it"))
     return sealed(record, [Change(address="rollback", action=Action.UPDATE, reason=reason)],
                   steps, now=machine.clock(), lpam_version=__version__,

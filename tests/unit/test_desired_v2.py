@@ -23,10 +23,9 @@ from reconciler.layout import Layout
 from reconciler.loading import load
 from reconciler.validation import validate
 from reconciler.workflow import editing
-from reconciler.workflow.applying import Applied, ApplyOptions, apply_file
+from reconciler.workflow.applying import Applied, ApplyOptions
 from reconciler.workflow.events import Event
 from reconciler.workflow.machine import Machine
-from reconciler.workflow.planning import plan_file
 from schemas.desired import CURRENT_VERSION, DesiredState
 from schemas.export import DOCUMENTS, FOLDER, FROZEN
 
@@ -95,25 +94,6 @@ def test_validate_reads_both_versions_and_several_apps(tmp_path: Path) -> None:
 
 
 SEVERAL = "version: 2\nrepositories: []\napps:\n  - rec\n  - name: tracker\n"
-
-
-@pytest.mark.parametrize("run", [
-    lambda m, p: plan_file(m, p, report=quiet),
-    lambda m, p: plan_file(m, p, report=quiet, offline=True),
-    lambda m, p: apply_file(m, p, options=ApplyOptions(lock_timeout=0),
-                            confirm=lambda plan: True, report=quiet),
-])
-def test_several_apps_are_refused_at_plan_time_before_anything(tmp_path: Path,
-                                                               run: Any) -> None:
-    root = tmp_path / "root"
-    path = write(tmp_path, SEVERAL)
-    machine = Machine.at(Layout(root))
-    before = sorted(root.rglob("*")) if root.exists() else []
-    with pytest.raises(ConfigError) as info:
-        run(machine, path)
-    assert "running several apps at once is not available yet" in info.value.message
-    assert (info.value.path, info.value.line, info.value.column) == (path, 5, 5)
-    assert (sorted(root.rglob("*")) if root.exists() else []) == before  # not even a lock
 
 
 def test_the_v1_schema_stays_frozen_beside_the_rendered_v2() -> None:

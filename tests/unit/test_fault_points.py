@@ -296,11 +296,10 @@ def test_with_no_cutover_recorded_an_unproven_app_is_never_returned_to(tmp_path:
     car = good_x(tmp_path)
     x = read_record(car.layout).app
     assert x is not None
-    assert returns_to(read_record(car.layout), generations.present(car.layout)) == x
+    assert returns_to(read_record(car.layout), generations.present(car.layout)) == [x]
     unproven = x.model_copy(update={"name": "z", "generation": "z-gen", "good": False})
     record = read_record(car.layout).model_copy(update={"app": unproven, "cutover": None})
-    back = returns_to(record, generations.present(car.layout))
-    assert back is not None and (back.name, back.generation, back.good) == (
-        "x", x.generation, True)
+    [back] = returns_to(record, generations.present(car.layout))
+    assert (back.name, back.generation, back.good) == ("x", x.generation, True)
     gone = record.model_copy(update={"history": []})  # nothing good known: what is there
-    assert returns_to(gone, generations.present(car.layout)) == unproven
+    assert returns_to(gone, generations.present(car.layout)) == [unproven]

@@ -21,6 +21,7 @@ from migrations import (
     state_record_v1_to_v2,
     state_record_v2_to_v3,
     state_record_v3_to_v4,
+    state_record_v4_to_v5,
     upgrade,
 )
 from migrations.step import MigrationError
@@ -42,6 +43,7 @@ STEP_FIXTURES = {
     ("state-record", "1"): FIXTURES / "state-record" / "v1_to_v2",
     ("state-record", "2"): FIXTURES / "state-record" / "v2_to_v3",
     ("state-record", "3"): FIXTURES / "state-record" / "v3_to_v4",
+    ("state-record", "4"): FIXTURES / "state-record" / "v4_to_v5",
     ("agent-status", "1"): FIXTURES / "agent-status" / "v1_to_v2",
     ("plan", "1"): FIXTURES / "plan" / "v1_to_v2",
     ("generation-meta", "0"): FIXTURES / "generation-meta" / "v0_to_v1",
@@ -60,6 +62,7 @@ V0_PAIRS = pairs(STEP_FIXTURES[("desired-state", "0.0")])
 RECORD_PAIRS = pairs(STEP_FIXTURES[("state-record", "1")])
 RECORD_V3_PAIRS = pairs(STEP_FIXTURES[("state-record", "2")])
 RECORD_V4_PAIRS = pairs(STEP_FIXTURES[("state-record", "3")])
+RECORD_V5_PAIRS = pairs(STEP_FIXTURES[("state-record", "4")])
 AGENT_STATUS_V2_PAIRS = pairs(STEP_FIXTURES[("agent-status", "1")])
 PLAN_V2_PAIRS = pairs(STEP_FIXTURES[("plan", "1")])
 META_V1_PAIRS = pairs(STEP_FIXTURES[("generation-meta", "0")])
@@ -136,6 +139,23 @@ def test_state_record_v3_to_v4_matches_fixture_and_validates(before: Path, after
     assert record.cutover is None
     # an app the old rules installed was taken for good: it stays a rollback target
     assert record.app is None or record.app.good
+
+
+@pytest.mark.parametrize(("before", "after"), RECORD_V5_PAIRS, ids=lambda p: p.name)
+def test_state_record_v4_to_v5_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    """One app becomes the one-app set, wherever the record named one (installed, the
+    app a cutover returns to, the app a rollback found failing): the same car, listed."""
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert state_record_v4_to_v5.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    record = StateRecord.model_validate(upgrade("state-record", data, path=before))
+    assert [a.name for a in record.apps] == ([data["app"]["name"]] if data["app"] else [])
+    cutover = data["cutover"]
+    if cutover is not None:
+        assert record.cutover is not None
+        assert [a.name for a in record.cutover.previous] == \
+            ([cutover["previous"]["name"]] if cutover["previous"] else [])
 
 
 @pytest.mark.parametrize(("before", "after"), AGENT_STATUS_V2_PAIRS, ids=lambda p: p.name)

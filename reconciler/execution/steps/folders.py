@@ -85,8 +85,8 @@ def run_script(ctx: Context, gen: Generation, script: str, params: dict[str, str
 
 def installed(app: AppGeneration, step: str, ctx: Context) -> AppRecord:
     """The app the record shows installed, which must be the one the step names."""
-    current = ctx.record.app
-    if current is None or (current.name, current.generation) != (app.name, app.generation):
+    current = ctx.record.installed(app.name)
+    if current is None or current.generation != app.generation:
         raise StepError(
             f"step {step}: the state record no longer shows this app installed",
             hint="run `lpam plan` again; the machine changed during the apply",

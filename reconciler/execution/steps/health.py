@@ -56,6 +56,6 @@ def _heard_on_bus(health: HealthCheck, ctx: Context, app: AppRecord, began: floa
 def _proved(ctx: Context, app: AppRecord) -> None:
     """The health check ran to its end and passed: from now on the app is good (a
     rollback target, an apply that is `applied`). Nothing before this point may say so."""
-    current = ctx.record.app
-    if current is not None and (current.name, current.generation) == (app.name, app.generation):
-        ctx.save_app(current.model_copy(update={"good": True}))
+    current = ctx.record.installed(app.name)
+    if current is not None and current.generation == app.generation:
+        ctx.save_app(app.name, current.model_copy(update={"good": True}))

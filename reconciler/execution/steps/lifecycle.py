@@ -35,7 +35,7 @@ from schemas.plan import (
     StopStep,
     UninstallStep,
 )
-from schemas.record import AppRecord, AppStatus
+from schemas.record import AppRecord, AppStatus, StateRecord
 
 
 def stage(step: StageStep, ctx: Context) -> None:
@@ -60,7 +60,7 @@ def _lifecycle(ctx: Context, app: AppRecord, what: What, during: AppStatus,
     """Intent, work, outcome: the record never claims more than is known. The work is the
     app's script (then the unit it names is checked), or the unit lpam wrote for it."""
     run = ctx.run_id() if not app.scriptless else None
-    ctx.save_app(app.model_copy(update={"status": during, "run": run}))
+    ctx.save_app(app.name, app.model_copy(update={"status": during, "run": run}))
     gen = of_record(ctx, app)
     if app.scriptless:
         _unit_work(ctx, app, gen, what)
@@ -74,9 +74,9 @@ def _lifecycle(ctx: Context, app: AppRecord, what: What, during: AppStatus,
             except StepError:
                 # The script ended with 0, but the unit says it did not do its work: the
                 # record must not be settled from that exit code (reconciler/state.py).
-                ctx.save_app(app.model_copy(update={"status": during, "run": None}))
+                ctx.save_app(app.name, app.model_copy(update={"status": during, "run": None}))
                 raise
-    ctx.save_app(None if after is None else
+    ctx.save_app(app.name, None if after is None else
                  app.model_copy(update={"status": after, "run": None}))
 
 
@@ -112,30 +112,54 @@ def uninstall(step: UninstallStep, ctx: Context) -> None:
     _lifecycle(ctx, app, "uninstall", "uninstalling", None)
     folders = ctx.app_folders()
     folders.release(app_folder(app.path), ctx.layout.generation_dir(app.name, app.generation))
-    folders.set_current(None)
+    folders.set_current(current_folder(ctx.record))
 
 
 def install(step: InstallStep, ctx: Context) -> None:
     gen = with_runtime(ctx, staged(step.app, step.id, ctx))
-    current = ctx.record.app
-    redo = (current is not None and (current.name, current.generation) == (gen.name, gen.generation)
-            and current.status in ("installing", "uninstalling"))
-    if (current is not None and not redo) or ctx.record.strays:
-        other = current.name if current is not None else ctx.record.strays[0].name
+    other = _in_the_way(ctx.record, gen)
+    if other is not None:
         raise StepError(
             f"refusing to install {gen.name}: {other} is still installed",
-            hint="only one app may own the vehicle's CAN hardware; run `lpam plan` again",
+            hint="only one app may own an exclusive resource (the vehicle's CAN hardware "
+            "above all); run `lpam plan` again",
         )
     if not ctx.layout.generation_dir(gen.name, gen.generation).is_dir():
         raise StepError(f"{gen.name}: generation {gen.generation} was not staged")
     app = as_record(gen, step.app.user).model_copy(update={"good": step.good})
-    ctx.app_folders().set_current(gen.folder)
+    ctx.app_folders().set_current(current_folder(ctx.record.with_app(app.name, app)))
     if gen.ros_build is not None and gen.ros_workspace is not None:
         # the field's scripts look for the sources in the workspace's own src/
         user = gen.ros_user or getpass.getuser()
         workspace = ctx.dependencies().workspace(Path(gen.ros_workspace), user)
         workspace.link(gen.ros_build, sorted(gen.ros))
     _lifecycle(ctx, app, "install", "installing", "installed")
+
+
+def _in_the_way(record: StateRecord, gen: Generation) -> str | None:
+    """What must be gone before `gen` is installed: a stray (it may hold anything), an
+    installed app that claims one of its resources (an app whose claims are not known
+    holds the panda), or another generation of itself. The same generation cut off while
+    installing or uninstalling is redone."""
+    if record.strays:
+        return record.strays[0].name
+    for app in record.apps:
+        if app.name == gen.name:
+            redo = app.generation == gen.generation and \
+                app.status in ("installing", "uninstalling")
+            if not redo:
+                return app.name
+        elif app.claims & gen.claims:
+            return app.name
+    return None
+
+
+def current_folder(record: StateRecord) -> str | None:
+    """LPAM's `current` app (its manifest and app file, kept true where LPAM left them):
+    the app that owns the panda, else the first installed."""
+    apps = record.apps
+    owner = next((a for a in apps if "panda" in a.claims), apps[0] if apps else None)
+    return None if owner is None else app_folder(owner.path)
 
 
 def adopt(step: AdoptStep, ctx: Context) -> None:
@@ -149,10 +173,10 @@ def adopt(step: AdoptStep, ctx: Context) -> None:
     status: AppStatus = "running" if step.running else "installed"
     app = as_record(gen, step.app.user).model_copy(update={"status": status, "good": True})
     others = [s for s in ctx.record.strays if s.folder != step.folder]
-    ctx.save(ctx.record.model_copy(update={"app": app, "strays": others}))
+    ctx.save(ctx.record.with_app(app.name, app).model_copy(update={"strays": others}))
     folders = ctx.app_folders()
     folders.point(gen.folder, where)
-    folders.set_current(gen.folder)
+    folders.set_current(current_folder(ctx.record))
 
 
 def configure(step: ConfigureStep, ctx: Context) -> None:
@@ -163,7 +187,7 @@ def configure(step: ConfigureStep, ctx: Context) -> None:
     if app.scriptless and app.status not in ("installing", "uninstalling"):
         gen = of_record(ctx, app)
         ctx.services.install(unit_for(ctx, app, place(ctx, gen), runtime(ctx, gen)))
-    ctx.save_app(app)
+    ctx.save_app(app.name, app)
 
 
 def start(step: StartStep, ctx: Context) -> None:
