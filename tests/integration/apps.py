@@ -1,16 +1,21 @@
 """Support for the CLI tests: an app repository whose scripts leave a trace, and a runner
-for the real `lpam` command in a subprocess with its own --root."""
+for the real `lpam` command in a subprocess with its own --root; and the car that the
+field frontends' tests (`libpanda-app-manager`, `lpam ble`) drive."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from reconciler.adapters.services.supervisor import shutdown
+from reconciler.layout import Layout
 from tests.gitserver import RepoBuilder
 
 SCRIPT = """#!/usr/bin/env bash
@@ -103,7 +108,8 @@ def desired(url: str, app: str | None, ref: str | None = None, **params: str) ->
 
 # A car as the field frontends' tests use it (libpanda-app-manager, lpam ble): a desired
 # state of its own whose GitHub repositories come from the test's git daemon, and an app
-# process that records its starts.
+# process that records its starts. Each frontend's test brings its own catalog of
+# fleet/apps; the rest of the car is the same for both.
 TICKER = """\
 import os, time
 with open(os.path.join(os.environ["LPAM_ROOT"], "starts"), "a") as f:
@@ -129,3 +135,61 @@ app:
   name: ticker
 # end of file
 """
+
+
+GADGET = """\
+apps:
+  - name: gadget
+    command: [python3, -u, run.py]
+    health: {settle_seconds: 0.5}
+"""
+
+
+def field_repos(make_repo: Callable[[str], RepoBuilder], catalog: str,
+                files: Mapping[str, str]) -> None:
+    """The GitHub repositories a frontend works with: `fleet/apps` (field_state's) at main,
+    `catalog` with `files` (scripts, `*.sh`, executable); and `extra/tools`, no apps on main
+    and the app gadget on its branch dev, the repository a frontend adds and removes."""
+    apps = make_repo("fleet/apps")
+    apps.write("libpanda-apps.yaml", catalog)
+    for path, text in files.items():
+        apps.write(path, text, executable=path.endswith(".sh"))
+    apps.commit("the apps the car runs")
+    apps.push()
+    tools = make_repo("extra/tools")
+    tools.commit("no apps on main")
+    tools.branch("dev")
+    tools.switch("dev")
+    tools.commit("gadget", {"libpanda-apps.yaml": GADGET, "gadget/run.py": TICKER,
+                            "gadget/description.txt": "a gadget\n"})
+    tools.push()
+
+
+class FieldCar:
+    """A car under `root` as a frontend's test checks it: the real lpam on its root and the
+    desired state that the frontend edits."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self.lpam = Lpam(root)
+        self.desired = root / "etc/lpam/desired-state.yaml"
+
+    def app(self) -> dict[str, Any]:
+        """The installed app as `lpam status` reports it; a test that asks expects one."""
+        found: dict[str, Any] | None = self.lpam.status()["app"]
+        assert found is not None, "no app is installed"
+        return found
+
+
+@contextlib.contextmanager
+def applied(car: FieldCar, port: int) -> Iterator[None]:
+    """`car` with field_state(port) applied (the daemon on `port` serves field_repos) for
+    the block; this root's supervisord, and so the app, stopped by its pid at the end."""
+    car.desired.parent.mkdir(parents=True, exist_ok=True)
+    car.desired.write_text(field_state(port))
+    try:
+        done = car.lpam("apply", "--yes")
+        assert done.returncode == 0, done.stderr
+        yield
+    finally:
+        shutdown(Layout(car.root))

@@ -25,13 +25,12 @@ from typing import Any
 
 import pytest
 
-from reconciler.adapters.services.supervisor import shutdown
 from reconciler.execution.lock import apply_lock
 from reconciler.layout import Layout
 from tests.bluez_double import BluezDouble, until
 from tests.dbus import needs_dbus_daemon, private_bus
 from tests.gitserver import GitDaemon, RepoBuilder
-from tests.integration.apps import TICKER, Lpam, field_state
+from tests.integration.apps import TICKER, FieldCar, applied, field_repos
 from tests.privzone_client import TEMPERATURE, Phone
 
 pytestmark = needs_dbus_daemon
@@ -50,56 +49,23 @@ apps:
     health: {settle_seconds: 0.5}
   - name: slow
 """
-GADGET = """\
-apps:
-  - name: gadget
-    command: [python3, -u, run.py]
-    health: {settle_seconds: 0.5}
-"""
-
-
-class Car:
-    def __init__(self, root: Path) -> None:
-        self.root = root
-        self.lpam = Lpam(root)
-        self.desired = root / "etc/lpam/desired-state.yaml"
-
-    def app(self) -> dict[str, Any]:
-        found: dict[str, Any] = self.lpam.status()["app"]
-        return found
 
 
 @pytest.fixture
 def car(tmp_path: Path, git_daemon: GitDaemon, make_repo: Callable[[str], RepoBuilder]
-        ) -> Iterator[Car]:
-    apps = make_repo("fleet/apps")
-    apps.write("libpanda-apps.yaml", CATALOG)
-    apps.write("ticker/run.py", TICKER)
-    apps.write("ticker/description.txt", "ticks (°C → CAN)\n")
-    for name in ("install", "uninstall", "start", "stop"):
-        extra = f"sleep {INSTALL_SECONDS}" if name == "install" else ""
-        apps.write(f"slow/{name}.sh", SCRIPT.format(name=name, extra=extra), executable=True)
-    apps.write("slow/description.txt", "installs slowly\n")
-    apps.commit("ticker and slow")
-    apps.push()
-    tools = make_repo("extra/tools")
-    tools.commit("no apps on main")
-    tools.branch("dev")
-    tools.switch("dev")
-    tools.commit("gadget", {"libpanda-apps.yaml": GADGET, "gadget/run.py": TICKER})
-    tools.push()
-    car = Car(tmp_path / "root")
-    car.desired.parent.mkdir(parents=True)
-    car.desired.write_text(field_state(git_daemon.port))
+        ) -> Iterator[FieldCar]:
+    slow = {f"slow/{name}.sh": SCRIPT.format(
+        name=name, extra=f"sleep {INSTALL_SECONDS}" if name == "install" else "")
+        for name in ("install", "uninstall", "start", "stop")}
+    field_repos(make_repo, CATALOG, {
+        "ticker/run.py": TICKER, "ticker/description.txt": "ticks (°C → CAN)\n",
+        **slow, "slow/description.txt": "installs slowly\n"})
+    car = FieldCar(tmp_path / "root")
     zone = car.root / "sys/class/thermal/thermal_zone0/temp"
     zone.parent.mkdir(parents=True)
     zone.write_text("48312\n")
-    try:
-        done = car.lpam("apply", "--yes")
-        assert done.returncode == 0, done.stderr
+    with applied(car, git_daemon.port):
         yield car
-    finally:
-        shutdown(Layout(car.root))  # this root's supervisord, by its pid
 
 
 @pytest.fixture
@@ -109,7 +75,7 @@ def bus(tmp_path: Path) -> Iterator[str]:
 
 
 @contextlib.contextmanager
-def ble(car: Car, bus: str) -> Iterator[subprocess.Popen[str]]:
+def ble(car: FieldCar, bus: str) -> Iterator[subprocess.Popen[str]]:
     """`lpam ble` on the private bus; SIGTERM by its pid when the block ends (if alive)."""
     log = open(car.root / "ble.log", "w")  # noqa: SIM115 - closed below
     proc = subprocess.Popen(
@@ -150,7 +116,7 @@ def rows(message: tuple[str, Any]) -> dict[str, dict[str, str]]:
 
 
 def test_a_phone_checks_switches_through_a_long_install_and_edits_repositories(
-    car: Car, bus: str,
+    car: FieldCar, bus: str,
 ) -> None:
     async def body() -> None:
         async with phones(bus) as double:
@@ -223,7 +189,7 @@ HOSTILE: list[tuple[str, Any, str]] = [
 ]
 
 
-def test_hostile_and_malformed_input_changes_nothing(car: Car, bus: str) -> None:
+def test_hostile_and_malformed_input_changes_nothing(car: FieldCar, bus: str) -> None:
     before = car.desired.read_bytes()
     pid = car.app()["unit"]["pid"]
 
@@ -261,7 +227,7 @@ SUCCESS = {"App command success!", "Repository updated!", "Repository removed!",
            "App updated!"}
 
 
-def test_an_apply_already_running_is_an_error_text_at_once(car: Car, bus: str) -> None:
+def test_an_apply_already_running_is_an_error_text_at_once(car: FieldCar, bus: str) -> None:
     async def body() -> None:
         async with phones(bus) as double:
             phone = Phone(double, PHONE_A)
@@ -279,7 +245,7 @@ def test_an_apply_already_running_is_an_error_text_at_once(car: Car, bus: str) -
     assert car.app()["name"] == "ticker"
 
 
-def test_two_phones_at_once_keep_their_own_messages(car: Car, bus: str) -> None:
+def test_two_phones_at_once_keep_their_own_messages(car: FieldCar, bus: str) -> None:
     async def body() -> None:
         async with phones(bus) as double:
             a, b = Phone(double, PHONE_A), Phone(double, PHONE_B)
@@ -302,7 +268,7 @@ def test_two_phones_at_once_keep_their_own_messages(car: Car, bus: str) -> None:
     assert car.app()["params"] == {"RATE": "5"}
 
 
-def test_sigterm_unregisters_and_exits_0(car: Car, bus: str) -> None:
+def test_sigterm_unregisters_and_exits_0(car: FieldCar, bus: str) -> None:
     async def body(proc: subprocess.Popen[str]) -> None:
         async with phones(bus) as double:
             proc.send_signal(signal.SIGTERM)

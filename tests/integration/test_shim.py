@@ -27,7 +27,7 @@ from reconciler.layout import Layout
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.machine import Machine
 from tests.gitserver import GitDaemon, RepoBuilder
-from tests.integration.apps import TICKER, Lpam, field_state
+from tests.integration.apps import TICKER, FieldCar, Lpam, applied, field_repos
 
 CATALOG = """\
 apps:
@@ -42,22 +42,11 @@ apps:
     health: {settle_seconds: 1}
 """
 TOCKER = 'Données GPS → CAN, "quoted" \\ back'
-GADGET = """\
-apps:
-  - name: gadget
-    command: [python3, -u, run.py]
-    health: {settle_seconds: 0.5}
-"""
 HEADER = "Repository\tBranch\tApp\tService\tEnabled\tRunning\tDescription"
 
 
-class Shim:
+class Shim(FieldCar):
     """The real `libpanda-app-manager`, in a subprocess, on LPAM_ROOT=root."""
-
-    def __init__(self, root: Path) -> None:
-        self.root = root
-        self.lpam = Lpam(root)
-        self.path = root / "etc/lpam/desired-state.yaml"
 
     def __call__(self, *args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
         env = {**os.environ, "LPAM_ROOT": str(self.root)}
@@ -72,49 +61,32 @@ class Shim:
 
     def refused(self, *args: str, code: int = 1) -> str:
         """The command fails with `code` and one line on stderr, changing nothing."""
-        before = self.path.read_bytes()
+        before = self.desired.read_bytes()
         done = self(*args)
         assert done.returncode == code, (args, done.stdout, done.stderr)
         lines = done.stderr.splitlines()
         assert len(lines) == 1 and lines[0].startswith("libpanda-app-manager: error: "), \
             done.stderr
         assert "Traceback" not in done.stdout + done.stderr
-        assert self.path.read_bytes() == before, args
+        assert self.desired.read_bytes() == before, args
         return lines[0]
 
     def unit(self) -> dict[str, object]:
-        app = self.lpam.status()["app"]
-        assert app is not None
-        found: dict[str, object] = app["unit"]
+        found: dict[str, object] = self.app()["unit"]
         return found
 
 
 @pytest.fixture
 def shim(tmp_path: Path, git_daemon: GitDaemon, make_repo: Callable[[str], RepoBuilder]
          ) -> Iterator[Shim]:
-    apps = make_repo("fleet/apps")
-    apps.write("libpanda-apps.yaml", CATALOG)
+    files = {"crasher/run.py": "import sys\nsys.exit(3)\n"}
     for name, text in (("ticker", "ticks"), ("tocker", TOCKER)):
-        apps.write(f"{name}/run.py", TICKER)
-        apps.write(f"{name}/description.txt", text + "\nsecond line\n")
-    apps.write("crasher/run.py", "import sys\nsys.exit(3)\n")
-    apps.commit("ticker, tocker and crasher")
-    apps.push()
-    tools = make_repo("extra/tools")
-    tools.commit("no apps on main")
-    tools.branch("dev")
-    tools.switch("dev")
-    tools.commit("gadget", {"libpanda-apps.yaml": GADGET, "gadget/run.py": TICKER,
-                            "gadget/description.txt": "a gadget\n"})
-    tools.push()
+        files[f"{name}/run.py"] = TICKER
+        files[f"{name}/description.txt"] = text + "\nsecond line\n"
+    field_repos(make_repo, CATALOG, files)
     runner = Shim(tmp_path / "root")
-    runner.path.parent.mkdir(parents=True)
-    runner.path.write_text(field_state(git_daemon.port))
-    try:
-        assert runner.lpam("apply", "--yes").returncode == 0
+    with applied(runner, git_daemon.port):
         yield runner
-    finally:
-        shutdown(Layout(runner.root))  # the supervisord of this root, by its pid
 
 
 def bluezone_rows(output: bytes) -> list[dict[str, str]]:
@@ -179,21 +151,21 @@ def test_the_table_is_lpams_and_bluezone_reads_it(shim: Shim) -> None:
 
 def test_i_switches_the_app_and_it_really_runs(shim: Shim) -> None:
     old = running_pid(shim)
-    before = shim.path.read_text()
+    before = shim.desired.read_text()
     out = shim.ok("-itocker")
     assert "App tocker enabled" in out
     assert gone(old)
     assert shim.unit()["name"] == "lpam-app-tocker"
     running_pid(shim)
     assert shim.ok("-c") == "tocker\n"
-    text = shim.path.read_text()
+    text = shim.desired.read_text()
     assert "name: tocker" in text and "name: ticker" not in text
     assert text.replace("tocker", "ticker") == before  # comments and layout kept
     rows = bluezone_rows(shim.ok("-d").encode())
     assert [(r["app"], r["enabled"], r["running"]) for r in rows] == \
         [("ticker", "no", "no"), ("tocker", "yes", "yes"), ("crasher", "no", "no")]
     # the same app again: nothing to do, success
-    assert shim("-i", "tocker").returncode == 0 and shim.path.read_text() == text
+    assert shim("-i", "tocker").returncode == 0 and shim.desired.read_text() == text
 
 
 def test_refusals_change_nothing_and_exit_non_zero(shim: Shim) -> None:
@@ -225,10 +197,10 @@ def test_refusals_change_nothing_and_exit_non_zero(shim: Shim) -> None:
 
 
 def test_a_repository_added_and_removed_keeps_the_files_comments(shim: Shim) -> None:
-    before = shim.path.read_text()
+    before = shim.desired.read_text()
     out = shim.ok("-g", "extra/tools", "-b", "dev")
     assert "Repository extra/tools added" in out
-    text = shim.path.read_text()
+    text = shim.desired.read_text()
     assert "\n- repo: extra/tools\n  ref: dev\napp:\n" in text
     assert text.startswith("# The car's apps") and "# the default apps" in text
     assert "# follow the branch" in text and "# end of file" in text
@@ -238,9 +210,9 @@ def test_a_repository_added_and_removed_keeps_the_files_comments(shim: Shim) -> 
                                                 for r in rows]
     # the same again: nothing changes, success; the app ran throughout
     assert shim("-g", "extra/tools", "-b", "dev").returncode == 0
-    assert shim.path.read_text() == text
+    assert shim.desired.read_text() == text
     shim.ok("-r", "extra/tools")
-    assert shim.path.read_text() == before
+    assert shim.desired.read_text() == before
     assert [r["app"] for r in bluezone_rows(shim.ok("-d").encode())] == \
         ["ticker", "tocker", "crasher"]
     running_pid(shim)
@@ -256,7 +228,7 @@ def test_u_s_k_and_t(shim: Shim) -> None:
     shim.ok("-u")
     assert shim.ok("-c") == "None\n"
     assert shim.ok("-t") == "inactive (none installed)\n"
-    assert "\napp: null\n" in shim.path.read_text()  # written as the README writes it
+    assert "\napp: null\n" in shim.desired.read_text()  # written as the README writes it
     assert "no app is installed" in shim.refused("-s")
 
 
@@ -290,20 +262,20 @@ def test_a_params_edit_restarts_the_app_without_reinstalling(shim: Shim) -> None
             kinds.extend(str(step.kind) for step in event.plan.steps)
 
     machine = Machine.at(Layout(shim.root))
-    hand_edit = shim.path.read_text() + "# a hand edit while the plan was made\n"
+    hand_edit = shim.desired.read_text() + "# a hand edit while the plan was made\n"
 
     def meddle(event: Event) -> None:
         if isinstance(event, Planned):
-            shim.path.write_text(hand_edit)
+            shim.desired.write_text(hand_edit)
 
     with pytest.raises(LpamError, match="changed while this edit waited"):
         set_params(machine, "ticker", {"RATE": "5"}, by="phone",
                    options=ApplyOptions(lock_timeout=2), report=meddle)
-    assert shim.path.read_text() == hand_edit and running_pid(shim) == pid
+    assert shim.desired.read_text() == hand_edit and running_pid(shim) == pid
     done = set_params(machine, "ticker", {"RATE": "20 Hz"}, by="phone",
                       options=ApplyOptions(lock_timeout=2), report=report)
     assert done.changed and kinds and not {"stage", "install", "uninstall"} & set(kinds)
-    assert shim.path.read_text().endswith(
+    assert shim.desired.read_text().endswith(
         "app:\n  name: ticker\n  params:\n    RATE: 20 Hz\n# end of file\n"
         "# a hand edit while the plan was made\n")
     assert gone(pid)
@@ -319,11 +291,11 @@ def test_on_a_fleet_car_an_edit_is_a_local_override_that_p_ends(car: Lpam, fleet
     shim = Shim(car.root)
     try:
         assert car("sync").returncode == 0
-        assert shim.ok("-c") == "alpha\n" and not shim.path.exists()
+        assert shim.ok("-c") == "alpha\n" and not shim.desired.exists()
         assert [r["app"] for r in bluezone_rows(shim.ok("-d").encode())] == ["alpha", "beta"]
         shim.ok("-i", "beta")
         assert shim.ok("-c") == "beta\n"
-        first = shim.path.read_text().splitlines()[0]
+        first = shim.desired.read_text().splitlines()[0]
         assert first.startswith("#") and "Made on this car from the fleet's" in first
         override = json.loads(Layout(car.root).override.read_text())
         assert override["by"] == "libpanda-app-manager" and override["seeded"] is True
@@ -331,6 +303,6 @@ def test_on_a_fleet_car_an_edit_is_a_local_override_that_p_ends(car: Lpam, fleet
         assert shim.ok("-c") == "beta\n"
         assert "Ended the local override" in shim.ok("-p")
         assert shim.ok("-c") == "alpha\n"
-        assert not Layout(car.root).override.exists() and not shim.path.exists()
+        assert not Layout(car.root).override.exists() and not shim.desired.exists()
     finally:
         shutdown(Layout(car.root))
