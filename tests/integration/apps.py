@@ -92,6 +92,26 @@ class Lpam:
         return log.read_text().split() if log.exists() else []
 
 
+def processes(root: Path, script: bytes = b".py") -> list[int]:
+    """The live app processes of this root (their environment names the root), whose
+    command line holds `script`: one per copy of an app (a copy's own children, such as
+    a python3 shim's helpers, are not copies)."""
+    mark = f"LPAM_ROOT={root}".encode()
+    found: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            env = (entry / "environ").read_bytes().split(b"\0")
+            cmd = (entry / "cmdline").read_bytes()
+            stat = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if mark in env and script in cmd and stat[0] not in ("Z", "X"):
+            found[int(entry.name)] = int(stat[1])
+    return sorted(pid for pid, parent in found.items() if parent not in found)
+
+
 def desired(url: str, app: str | None, ref: str | None = None, **params: str) -> str:
     lines = ["version: 1", "repositories:", f"  - url: {url}"]
     if ref is not None:

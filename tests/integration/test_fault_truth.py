@@ -27,7 +27,7 @@ import pytest
 from reconciler.adapters.services.supervisor import shutdown
 from reconciler.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
-from tests.integration.apps import Lpam, apps_repo, desired
+from tests.integration.apps import Lpam, apps_repo, desired, processes
 
 BUS = """\
 import fcntl, os, sys, time
@@ -65,7 +65,7 @@ def lpam(tmp_path: Path) -> Iterator[Lpam]:
         yield runner
     finally:
         shutdown(Layout(runner.root))
-        for pid in bus_holders(runner.root):  # whatever a killed supervisord left behind
+        for pid in processes(runner.root):  # whatever a killed supervisord left behind
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
 
@@ -84,23 +84,8 @@ def url(make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon) -> str:
 
 
 def bus_holders(root: Path) -> list[int]:
-    """The live app processes of this root (their environment names the root): one per
-    copy of an app. The processes a copy starts on its way (python3 may be a shim that
-    runs shell helpers first) are its children, not other copies."""
-    mark = f"LPAM_ROOT={root}".encode()
-    found: dict[int, int] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            env = (entry / "environ").read_bytes().split(b"\0")
-            cmd = (entry / "cmdline").read_bytes()
-            stat = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if mark in env and b"bus.py" in cmd and stat[0] not in ("Z", "X"):
-            found[int(entry.name)] = int(stat[1])
-    return sorted(pid for pid, parent in found.items() if parent not in found)
+    """The live app processes of this root: one per copy of an app (apps.py `processes`)."""
+    return processes(root, b"bus.py")
 
 
 def apps_running(root: Path) -> list[str]:
