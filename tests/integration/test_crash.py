@@ -81,7 +81,8 @@ def test_sigkill_during_cutover_then_apply_converges(
     assert proc.returncode == -signal.SIGKILL
     # alpha is uninstalled; the record says beta's install.sh may have been cut off
     record = json.loads((lpam.root / "var/lib/lpam/state.json").read_text())
-    assert (record["app"]["name"], record["app"]["status"]) == ("beta", "installing")
+    [app] = record["apps"]  # the record's version 5 lists the installed apps
+    assert (app["name"], app["status"]) == ("beta", "installing")
     (lpam.root / "killed-once").touch()
     again = lpam("apply", "--yes")
     assert again.returncode == 0, again.stderr
