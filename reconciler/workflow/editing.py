@@ -103,8 +103,11 @@ def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOpt
     beside it goes. The claims are read from the catalogs in the repository store as
     the last fetch left them, with no network (the phone is often out of WiFi); when a
     catalog cannot be read there (a repository never fetched, an app no catalog offers),
-    NAME replaces the whole list as before issue 22, and a note says so. No app (`-u`,
-    the phone's null) is `apps: []`: every app stops, as LPAM's "no app" meant."""
+    NAME replaces the whole list as before issue 22, and a note says so. The claims read
+    here only shape the edit: the plan, under the lock, checks them again from what it
+    fetched and refuses two owners of a resource (workflow/planning.py), file unchanged.
+    No app (`-u`, the phone's null) is `apps: []`: every app stops, as LPAM's "no app"
+    meant."""
     from schemas.names import check_app_name
 
     if name is not None:

@@ -12,8 +12,6 @@ that claims nothing runs it beside the others; `-u` stops them all.
 from __future__ import annotations
 
 import json
-import os
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -21,10 +19,11 @@ import pytest
 
 from reconciler.adapters.services.supervisor import shutdown
 from reconciler.layout import Layout
+from reconciler.process import alive
 from reconciler.workflow.machine import Machine
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import TICKER
-from tests.integration.test_shim import HEADER, Shim, bluezone_rows
+from tests.integration.test_shim import HEADER, Shim, bluezone_rows, gone
 
 OWNER = "    properties:\n      - owns_panda: true\n"
 CATALOG = "apps:\n" + "".join(
@@ -80,21 +79,6 @@ def pids(shim: Shim) -> dict[str, int]:
         name, pid = line.split()
         found[name] = int(pid)
     return found
-
-
-def alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
-
-
-def gone(pid: int) -> bool:
-    deadline = time.monotonic() + 10
-    while alive(pid) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    return not alive(pid)
 
 
 def enabled(shim: Shim) -> list[tuple[str, str, str]]:
