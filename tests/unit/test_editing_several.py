@@ -206,3 +206,23 @@ def test_a_version_1_file_keeps_its_one_app(tmp_path: Path, caught: dict[str, An
         "  name: logger        # drives the car\n")
     switch(machine, None)
     assert caught["text"] == V1.split("app:")[0] + "app: null\n# end of file\n"
+
+
+def test_no_installed_app_loses_its_repository(tmp_path: Path, caught: dict[str, Any]) -> None:
+    """`-r` / `app_remove_repository` is refused for the repository of any installed app,
+    not only the first one installed."""
+    from reconciler.errors import LpamError
+    from reconciler.state import write_record
+    from schemas.record import AppRecord, StateRecord
+
+    tools = "https://github.com/extra/tools"
+    text = V2.replace("apps:\n", f"  - url: {tools}\napps:\n", 1)
+    machine = car(tmp_path, text, offline_store())
+    installed = [AppRecord(name=name, generation=f"g-{name}", repository=key, commit=COMMIT,
+                           tree=f"t-{name}", path=name, status="running")
+                 for name, key in (("controller", KEY), ("gadget", "extra/tools"))]
+    write_record(machine.layout, StateRecord(apps=installed))
+    with pytest.raises(LpamError, match="installed app gadget comes from extra/tools"):
+        editing.remove_repository(machine, "extra/tools", by="t", options=ApplyOptions(),
+                                  report=lambda event: None)
+    assert caught == {}  # nothing was handed to an apply
