@@ -60,11 +60,13 @@ def _last(node: Any) -> Any:
 
 
 def _leaf(node: Any, key: Any) -> tuple[Any, Any]:
-    """The container and key of the last scalar under `node[key]`."""
+    """The container and key of the last scalar under `node[key]`; a flow collection
+    (`{A: "1"}`, `[a, b]`) counts as one scalar: the comments after it are its key's."""
     while True:
         value = node[key]
         last = _last(value) if isinstance(value, (Mapping, list)) else None
-        if last is None or not hasattr(value, "ca"):
+        if last is None or not hasattr(value, "ca") or \
+                (hasattr(value, "fa") and value.fa.flow_style()):
             return node, key
         node, key = value, last
 

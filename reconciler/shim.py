@@ -9,6 +9,10 @@ exit 0 only on success, each error one line on stderr, a value that looks like a
 (`-i --upload-pack=x`) refused as a usage error, and no shell anywhere. LPAM's interactive
 menu (no flags) is gone: usage, exit 2.
 
+A car may run several apps side by side (issue 22): `-d` says `yes` under Enabled for each
+installed app and `-c` prints each on its own line, as LPAM printed its one; `-i APP`
+replaces only the apps that claim a resource APP claims (workflow/editing.py).
+
 `-d` prints LPAM's table for bluezone, which decodes it as UTF-8, then latin-1 through
 Python's `unicode_escape`: so the table is ASCII, non-ASCII text written as the `\\xNN`
 escapes of its UTF-8 bytes (bluezone turns them back into the characters) and a backslash
@@ -47,15 +51,18 @@ usage: {PROG} [-d] [-l] [-c] [-t] [-i APP | -u] [-g OWNER/REPO [-b BRANCH]]
 LPAM's command line, on top of lpam: each flag edits lpam's default desired state
 ($LPAM_ROOT/etc/lpam/desired-state.yaml, LPAM_ROOT default /) and applies it, or asks it.
 
-  -d               the apps of every repository: a tab-separated table (LPAM's, for bluezone)
+  -d               the apps of every repository: a tab-separated table (LPAM's, for bluezone);
+                   Enabled is yes for each installed app
   -l               the app names
-  -c               the installed app, or None
-  -t               the installed app's service, as its service manager sees it
-  -i APP           make APP the desired app and apply (install, start)
-  -u               no app: stop and uninstall the installed one
+  -c               the installed apps, one a line, or None
+  -t               each installed app's service, as its service manager sees it
+  -i APP           enable APP and apply (install, start): it replaces the apps that claim a
+                   resource APP claims (the panda...) and runs beside the others; in a
+                   version-1 desired state (one app) it replaces the app
+  -u               no app: stop and uninstall every installed app
   -g OWNER/REPO    add a GitHub repository of apps (acted on after the other flags)
   -b BRANCH        with -g: its branch (default: the repository's default branch)
-  -r OWNER/REPO    remove a repository (not the one the installed app comes from)
+  -r OWNER/REPO    remove a repository (not one an installed app comes from)
   -p               fetch every repository and apply (branches move to their tips)
   -s / -k          start / stop the installed app
   -h               this help
@@ -179,7 +186,7 @@ def _act(machine: Machine, flag: str, value: str | None) -> None:
         names = dict.fromkeys(r.app for r in inventory.app_table(machine))
         print(" ".join(names))
     elif flag == "c":
-        print(inventory.current_app(machine) or "None")
+        print("\n".join(inventory.current_apps(machine)) or "None")
     elif flag == "t":
         print(inventory.service_state(machine))
     elif flag in "iu":

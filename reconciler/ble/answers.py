@@ -72,7 +72,8 @@ def command(machine: Machine, given: m.Command, report: Report) -> Answer:
 
 
 def app_info(machine: Machine) -> list[bytes]:
-    """`A`: every app of every repository, as `libpanda-app-manager -d` lists them."""
+    """`A`: every app of every repository, as `libpanda-app-manager -d` lists them: each
+    installed app `enabled` (several run side by side: workflow/inventory.py)."""
     from reconciler.workflow.inventory import app_table
 
     rows = [m.AppRow(repository=r.repository, branch=r.branch, app=r.app, service=r.service,

@@ -29,7 +29,7 @@ from reconciler import roundtrip
 from reconciler.errors import LpamError
 from reconciler.workflow import override
 from reconciler.workflow.applying import Applied, ApplyOptions, apply, apply_file
-from reconciler.workflow.events import Report
+from reconciler.workflow.events import Note, Report
 from reconciler.workflow.machine import Machine
 
 if TYPE_CHECKING:
@@ -91,10 +91,23 @@ def github_repository(value: str) -> str:
 
 def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOptions,
                report: Report) -> Edited:
-    """`app:` becomes `{name: NAME}` (a fresh entry: another app's params are not its
-    own), or `null` for no app; the same app again changes nothing in the file. A
-    version-2 file's `apps:` becomes that one app, or `[]`: the phone and the shim know
-    one app (issue 22 will make them replace only the apps that share a resource)."""
+    """Version 1 (`app:`, one app): `app:` becomes `{name: NAME}` (a fresh entry: another
+    app's params are not its own), or `null` for no app; the same app again changes
+    nothing in the file.
+
+    Version 2 (`apps:`, several apps side by side): NAME replaces the listed apps that
+    claim an exclusive resource NAME claims (the panda, a serial GPS, a unit: see
+    planning/resources.py) and leaves the others as they are, entries, params and
+    comments; NAME claiming nothing is added beside them, and NAME already listed changes
+    nothing. A user asks for an app, not for the end of the others: only what cannot run
+    beside it goes. The claims are read from the catalogs in the repository store as
+    the last fetch left them, with no network (the phone is often out of WiFi); when a
+    catalog cannot be read there (a repository never fetched, an app no catalog offers),
+    NAME replaces the whole list as before issue 22, and a note says so. The claims read
+    here only shape the edit: the plan, under the lock, checks them again from what it
+    fetched and refuses two owners of a resource (workflow/planning.py), file unchanged.
+    No app (`-u`, the phone's null) is `apps: []`: every app stops, as LPAM's "no app"
+    meant."""
     from schemas.names import check_app_name
 
     if name is not None:
@@ -102,7 +115,17 @@ def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOpt
 
     def change(tree: Any, current: DesiredState) -> None:
         if _listing(tree):
-            _enable_listed(tree, current, name)
+            if name is None:
+                _only(tree, current, None)
+                return
+            try:
+                claims = _claims(machine, current, name)
+            except LpamError as exc:
+                report(Note(f"{name} replaces every listed app: the catalogs could not be "
+                            f"read without network ({exc.message})"))
+                _only(tree, current, name)
+                return
+            beside(tree, current, name, claims)
             return
         entry = tree.get("app")
         if name is None:
@@ -131,9 +154,53 @@ def _renamed(entry: Any, name: str) -> None:
         roundtrip.drop(entry, key)
 
 
-def _enable_listed(tree: Any, current: DesiredState, name: str | None) -> None:
+def _claims(machine: Machine, current: DesiredState, name: str) -> dict[str, frozenset[str]]:
+    """The exclusive resources of each listed app and of `name`, resolved from the
+    catalogs with no network (the store as the last fetch left it). Raises LpamError,
+    saying why, when one of them cannot be known here."""
+    from reconciler.observe.targets import Fetch, resolve
+    from schemas.desired import AppSpec
+
+    probe = current.model_copy(update={"apps": [*current.apps, AppSpec(name=name)]})
+    targets = resolve(probe, base_dir=machine.layout.desired_state.resolve().parent,
+                      store=machine.store(), fetch=Fetch.OFFLINE, root=machine.layout.root)
+    unread = [t.name for t in targets.apps if t.tree is None]
+    if unread:
+        raise LpamError(f"the catalog offering {', '.join(unread)} is not fetched yet")
+    return {t.name: t.resources for t in targets.apps}
+
+
+def beside(tree: Any, current: DesiredState, name: str,
+           claims: Mapping[str, frozenset[str]]) -> None:
+    """`name` into a version-2 file's `apps:` beside the apps it can run with: it takes
+    the place of the first listed app sharing a claim with it (that entry renamed, so its
+    comments stay), the other rivals leave, and with no rival it is added last; already
+    listed, nothing changes. `claims`: app name → its exclusive resources."""
+    if any(a.name == name for a in current.apps):
+        return
+    entries = tree.get("apps")
+    if not entries:
+        _only(tree, current, name)
+        return
+    wanted = claims.get(name, frozenset())
+    rivals = [i for i, a in enumerate(current.apps) if claims.get(a.name, frozenset()) & wanted]
+    if not rivals:
+        flow = entries.fa.flow_style() if hasattr(entries, "fa") else False
+        roundtrip.add(entries, None, name if flow else roundtrip.mapping({"name": name}))
+        return
+    first = rivals[0]
+    if isinstance(entries[first], MutableMapping):
+        _renamed(entries[first], name)
+    else:  # the `NAME` shorthand
+        entries[first] = name
+    for index in reversed(rivals[1:]):
+        roundtrip.drop(entries, index)
+
+
+def _only(tree: Any, current: DesiredState, name: str | None) -> None:
     """`apps:` of a version-2 file becomes `[NAME]` (its one entry renamed when it had
-    one, so its comments stay) or `[]`; unchanged when it already is."""
+    one, so its comments stay) or `[]`; unchanged when it already is. No app stops every
+    app; NAME alone is the edit when the claims of the apps are not known here."""
     if [a.name for a in current.apps] == ([] if name is None else [name]):
         return
     entries = tree.get("apps")
@@ -186,12 +253,12 @@ def add_repository(machine: Machine, repository: str, branch: str | None, *, by:
 def remove_repository(machine: Machine, repository: str, *, by: str, options: ApplyOptions,
                       report: Report) -> Edited:
     """The repository leaves the desired state (lpam removes its checkout). Refused when
-    it is not listed, or when the installed or the desired app comes from it: the app
-    would lose its source mid-flight; switch apps first."""
+    it is not listed, or when an installed or a desired app comes from it (any of them,
+    when several run): the app would lose its source mid-flight; switch apps first."""
     from reconciler.state import read_record
 
     checked("repository", repository)
-    installed = read_record(machine.layout).app
+    installed = read_record(machine.layout).apps
 
     def change(tree: Any, current: DesiredState) -> None:
         index = _listed(current, repository)
@@ -201,13 +268,14 @@ def remove_repository(machine: Machine, repository: str, *, by: str, options: Ap
                             f"(it lists: {listed})", hint=UNCHANGED)
         spec = current.repositories[index]
         names = {spec.key, spec.repo, spec.url, spec.name} - {None}
-        if installed is not None and installed.repository in names:
-            raise LpamError(f"the installed app {installed.name} comes from {repository}",
-                            hint=f"enable another app (or none) first; {UNCHANGED}")
-        wanted = current.app
-        if wanted is not None and wanted.repository in names:
-            raise LpamError(f"the desired app {wanted.name} comes from {repository}",
-                            hint=f"enable another app (or none) first; {UNCHANGED}")
+        for app in installed:
+            if app.repository in names:
+                raise LpamError(f"the installed app {app.name} comes from {repository}",
+                                hint=f"enable another app (or none) first; {UNCHANGED}")
+        for wanted in current.apps:
+            if wanted.repository in names:
+                raise LpamError(f"the desired app {wanted.name} comes from {repository}",
+                                hint=f"enable another app (or none) first; {UNCHANGED}")
         roundtrip.drop(tree["repositories"], index)
 
     return edit(machine, change, by=by, options=options, report=report)

@@ -6,8 +6,10 @@ repository store at the commit the desired state resolves to *without network* (
 as the last fetch left it): the table answers at once in a staging area with no WiFi,
 and while an apply runs. The rows themselves are `lpam status`'s (reconciler/status.py:
 files read from committed blobs, never a checkout; a damaged copy does not fail the
-table), so both say the same thing; a repository never fetched has no row yet. Whether
-the installed app runs is asked of its service manager.
+table), so both say the same thing; a repository never fetched has no row yet. Every
+installed app is enabled (a car runs several side by side since issue 22: a controller
+that owns the panda beside a recorder and a tracker); whether each runs is asked of its
+service manager.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ NO_APP_STATE = "inactive (none installed)"  # LPAM's `-t` without an app
 
 @dataclass(frozen=True)
 class AppRow:
-    """An app as LPAM's table and the phone show it. `enabled`: it is the installed app;
+    """An app as LPAM's table and the phone show it. `enabled`: it is an installed app;
     `running`: its service manager says it runs (always False for the others)."""
 
     repository: str  # `owner/repo` for a GitHub shorthand, else the repository's name
@@ -43,7 +45,9 @@ class AppRow:
 
 
 def app_table(machine: Machine) -> list[AppRow]:
-    """Every app of every repository of the default desired state, offline."""
+    """Every app of every repository of the default desired state, offline; each
+    installed app enabled (several run side by side since issue 22), at its catalog's
+    place, or last when the catalog no longer lists it."""
     from reconciler import status
     from reconciler.documents import desired_from
     from reconciler.loading import load
@@ -55,10 +59,17 @@ def app_table(machine: Machine) -> list[AppRow]:
     record = read_record(machine.layout)
     repositories = [r for r in (_offline(machine, store, desired, spec, found.path)
                                 for spec in desired.repositories) if r is not None]
-    app = record.app
-    live = machine.services.state(app.service) if app is not None and app.service else None
-    rows = status.rows(machine.layout, store=store, live=live,
-                       record=record.model_copy(update={"repositories": repositories}))
+    offered = record.model_copy(update={"repositories": repositories, "apps": []})
+    rows = status.rows(machine.layout, store=store, record=offered)
+    for app in record.apps:  # each app's row made as status makes the one app's
+        live = machine.services.state(app.service) if app.service else None
+        alone = offered.model_copy(update={
+            "apps": [app], "repositories": [r for r in repositories if r.key == app.repository]})
+        mine = next(r for r in status.rows(machine.layout, store=store, record=alone,
+                                           live=live) if r.installed)
+        at = next((i for i, r in enumerate(rows) if not r.installed and
+                   (r.repository, r.app) == (mine.repository, mine.app)), len(rows))
+        rows[at:at + 1] = [mine]
     return [AppRow(repository=r.repository, branch=r.ref, app=r.app,
                    service="" if r.service == "-" else r.service, enabled=r.installed,
                    running=r.running, description=r.description)
@@ -84,21 +95,22 @@ def _offline(machine: Machine, store: GitStore, desired: DesiredState, spec: Rep
                             commit=target.commit, applied=target.commit)
 
 
-def current_app(machine: Machine) -> str | None:
-    """The installed app's name (LPAM's `current:`), None when there is none."""
+def current_apps(machine: Machine) -> list[str]:
+    """The installed apps' names, in the order they were installed (LPAM's `current:`,
+    which named one); empty when there is none."""
     from reconciler.state import read_record
 
-    app = read_record(machine.layout).app
-    return None if app is None else app.name
+    return [app.name for app in read_record(machine.layout).apps]
 
 
 def service_state(machine: Machine) -> str:
-    """The installed app's unit as its service manager sees it now (LPAM's `-t`)."""
+    """Each installed app's unit as its service manager sees it now, one a line (LPAM's
+    `-t`, which had one app)."""
     from reconciler.state import read_record
 
-    app = read_record(machine.layout).app
-    if app is None:
+    apps = read_record(machine.layout).apps
+    if not apps:
         return NO_APP_STATE
-    if not app.service:
-        return f"{app.name} names no service: lpam records it {app.status}"
-    return machine.services.state(app.service).describe()
+    return "\n".join(machine.services.state(app.service).describe() if app.service else
+                     f"{app.name} names no service: lpam records it {app.status}"
+                     for app in apps)
