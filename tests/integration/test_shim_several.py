@@ -62,8 +62,8 @@ def car(tmp_path: Path, git_daemon: GitDaemon, make_repo: Callable[[str], RepoBu
     apps.commit("two panda owners, two apps that claim nothing")
     apps.push()
     shim = Shim(tmp_path / "root")
-    shim.path.parent.mkdir(parents=True)
-    shim.path.write_text(several(git_daemon.port))
+    shim.desired.parent.mkdir(parents=True)
+    shim.desired.write_text(several(git_daemon.port))
     try:
         done = shim.lpam("apply", "--yes")
         assert done.returncode == 0, done.stderr
@@ -111,31 +111,31 @@ def test_every_installed_app_is_enabled_in_the_table_and_on_the_phone(car: Shim)
 def test_i_replaces_the_panda_owner_only_and_adds_an_app_that_claims_nothing(car: Shim
                                                                            ) -> None:
     before = pids(car)
-    text = car.path.read_text()
+    text = car.desired.read_text()
     car.ok("-i", "pilot")
     assert gone(before["driver"])
     assert alive(before["ticker"]) and pids(car)["ticker"] == before["ticker"]  # untouched
     pilot = pids(car)["pilot"]
     assert alive(pilot)
-    assert car.path.read_text() == text.replace("driver  ", "pilot   ")  # comments kept
+    assert car.desired.read_text() == text.replace("driver  ", "pilot   ")  # comments kept
     assert enabled(car) == [("driver", "no", "no"), ("pilot", "yes", "yes"),
                             ("ticker", "yes", "yes"), ("tocker", "no", "no")]
     assert car.ok("-c") == "ticker\npilot\n"  # in the order they were installed
 
     car.ok("-i", "tocker")  # claims nothing: it runs beside the others
-    assert car.path.read_text().endswith(
+    assert car.desired.read_text().endswith(
         '  - name: ticker\n    params: {RATE: "5"}\n  - name: tocker\n# end of file\n')
     now = pids(car)
     assert (now["ticker"], now["pilot"]) == (before["ticker"], pilot)
     assert all(alive(now[name]) for name in ("pilot", "ticker", "tocker"))
     assert [row[1] for row in enabled(car)] == ["no", "yes", "yes", "yes"]
 
-    unchanged = car.path.read_bytes()
+    unchanged = car.desired.read_bytes()
     car.ok("-i", "ticker")  # already listed: nothing changes
-    assert car.path.read_bytes() == unchanged
+    assert car.desired.read_bytes() == unchanged
 
     car.ok("-u")  # no app: every app stops
-    assert "\napps: []\n" in car.path.read_text()
+    assert "\napps: []\n" in car.desired.read_text()
     assert all(gone(pid) for pid in pids(car).values())
     assert car.ok("-c") == "None\n"
     assert [row[1] for row in enabled(car)] == ["no"] * 4
