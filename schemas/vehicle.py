@@ -213,6 +213,11 @@ class GatesSpec(BaseModel):
     on_no_signal: Literal["defer", "allow"] = "defer"
     windows: list[StrictStr] = Field(default_factory=list)
     locks: list[LockSpec] = Field(default_factory=list)
+    unclaimed: Literal["gated", "free"] = Field(
+        default="gated", description="a cutover that touches only apps claiming no "
+        "exclusive resource (a recorder, a tracker: no `owns_panda`, no `resources`): "
+        "`gated` waits for the gates like any other; `free` changes them while the car "
+        "moves. A cutover touching an app that claims anything always waits.")
 
     @field_validator("windows")
     @classmethod

@@ -61,6 +61,10 @@ class VehicleGate:
     monotonic: Callable[[], float] = time.monotonic
     minute: Callable[[], int] = local_minute
 
+    @property
+    def unclaimed_free(self) -> bool:
+        return self.gates.unclaimed == "free"
+
     def states(self) -> list[GateState]:
         from reconciler.adapters.locks import probe
 

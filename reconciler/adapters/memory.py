@@ -299,8 +299,9 @@ class MemoryGate:
     at each check, in turn (the last stays); `hold` re-checks once per second of `wait`
     without sleeping, as the real gate re-checks while frames arrive."""
 
-    def __init__(self, *closed: list[str]) -> None:
+    def __init__(self, *closed: list[str], unclaimed_free: bool = False) -> None:
         self._checks = list(closed) or [[]]
+        self.unclaimed_free = unclaimed_free
         self.holds = 0  # how many times the locks were taken
         self.releases = 0
 

@@ -39,6 +39,7 @@ from reconciler.execution.recovery import (
 )
 from reconciler.execution.steps import check_out, record_checkout
 from reconciler.journal import Journal
+from schemas.generation import AppGeneration
 from schemas.plan import CheckoutStep, Phase, Plan, Step
 from schemas.record import AppRecord
 
@@ -102,7 +103,7 @@ def _run(plan: Plan, ctx: Context, journal: AdvisoryJournal, progress: Callable[
             raise StopRequested(f"stopped on request before {step.id}; nothing on the "
                                 "running app was changed", hint="the next pass resumes")
         if step.phase is Phase.CUTOVER and not began:
-            if ctx.gate is not None:
+            if ctx.gate is not None and gated(plan, ctx.gate):
                 held.append(_pass_gates(ctx.gate, ctx, journal, progress))
             if record_result:
                 begin_cutover(ctx, previous)  # StateWriteError: nothing was changed yet
@@ -122,6 +123,21 @@ def _run(plan: Plan, ctx: Context, journal: AdvisoryJournal, progress: Callable[
         except LpamError as exc:
             raise fail(step, exc, previous, ctx, journal, progress,
                        record_result=record_result) from exc
+
+
+def gated(plan: Plan, gate: Gate) -> bool:
+    """Whether the plan's cutover waits for the gates: always, unless the gates free the
+    apps that claim nothing exclusive and every app (or stray) it touches claims nothing
+    (an app whose claims are not known holds the panda)."""
+    if not gate.unclaimed_free:
+        return True
+    for step in plan.steps:
+        if step.phase is not Phase.CUTOVER:
+            continue
+        app = getattr(step, "app", None)
+        if not isinstance(app, AppGeneration) or app.claims:
+            return True
+    return False
 
 
 def _pass_gates(gate: Gate, ctx: Context, journal: AdvisoryJournal,

@@ -344,6 +344,11 @@ class Gate(Protocol):
     section mid-swap; still closed, it raises `Deferred` naming each closed gate. `states`
     is one look now, holding nothing (`lpam gates`)."""
 
+    @property
+    def unclaimed_free(self) -> bool:
+        """A cutover of apps that claim nothing exclusive need not wait (`unclaimed: free`)."""
+        ...
+
     def states(self) -> Sequence[GateState]: ...
 
     def hold(self, *, wait: float, progress: Callable[[str], None]) -> Held: ...

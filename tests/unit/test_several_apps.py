@@ -21,14 +21,15 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from reconciler import generations
 from reconciler.adapters.folders import DiskFolders
-from reconciler.adapters.memory import Crash, MemoryScripts, MemoryStore
+from reconciler.adapters.memory import Crash, MemoryGate, MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
-from reconciler.errors import StepError
+from reconciler.errors import Deferred, StepError
 from reconciler.execution.context import Context
 from reconciler.execution.executor import execute
 from reconciler.layout import Layout
@@ -143,12 +144,12 @@ class Car:
         return make_plan(targets, observe(self.layout, self.store, targets, self.services),
                          now=NOW, lpam_version="t")
 
-    def apply(self, wish: list[Entry]) -> bool:
+    def apply(self, wish: list[Entry], gate: MemoryGate | None = None) -> bool:
         """One `lpam apply`; True when it ended without an error or a crash."""
         ctx = Context(layout=self.layout, store=self.store, scripts=self.vehicle,
                       services=self.services, record=read_record(self.layout),
                       clock=lambda: NOW, monotonic=lambda: self.clock,
-                      sleep=lambda s: None,
+                      sleep=lambda s: None, gate=gate,
                       folders=DiskFolders(layout=self.layout, store=self.store))
         try:
             execute(self._plan(wish), ctx, progress=lambda _: None)
@@ -253,3 +254,19 @@ def test_the_graph_orders_only_what_shares_a_claim(tmp_path: Path) -> None:
     assert car.apply([("c2", C1, ()), ("r", C1, ()), ("g1", C1, ())])
     assert [c for c in car.vehicle.calls if c.startswith("c")] == [
         "c1:stop.sh", "c1:uninstall.sh", "c2:install.sh", "c2:start.sh", "c2:check"]
+
+
+def test_apps_that_claim_nothing_change_while_the_car_moves_only_if_the_gates_free_them(
+        tmp_path: Path) -> None:
+    """`gates.unclaimed: free`: the recorder's new version goes in while the car moves;
+    a switch of the controller still waits. Without it (`gated`), everything waits."""
+    car = Car(tmp_path, [("c1", C1, ()), ("r", C1, ())], ["running", "running"])
+    moving = ["moving: 42.0 km/h"]
+    with pytest.raises(Deferred):
+        car.apply([("c1", C1, ()), ("r", C2, ())], MemoryGate(moving))
+    assert car.vehicle.calls == []
+    assert car.apply([("c1", C1, ()), ("r", C2, ())], MemoryGate(moving, unclaimed_free=True))
+    assert {c.split(":")[0] for c in car.vehicle.calls} == {"r"}  # the recorder alone
+    with pytest.raises(Deferred):
+        car.apply([("c2", C1, ()), ("r", C2, ())], MemoryGate(moving, unclaimed_free=True))
+    assert ("c1", C1, (), "running") in car.apps()
