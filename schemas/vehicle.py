@@ -30,9 +30,11 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    SerializerFunctionWrapHandler,
     StrictInt,
     StrictStr,
     field_validator,
+    model_serializer,
     model_validator,
 )
 
@@ -235,6 +237,16 @@ class GatesSpec(BaseModel):
 
     def spans(self) -> list[tuple[int, int]]:
         return [parse_window(w) for w in self.windows]
+
+    @model_serializer(mode="wrap")
+    def _default_unwritten(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """`unclaimed` is dumped only when it is not the default: a desired state's
+        fingerprint (what an operator's stop and a rollback hold against) stays the one
+        an lpam before several apps took, so an upgrade ends no hold."""
+        data = handler(self)
+        if isinstance(data, dict) and data.get("unclaimed") == "gated":
+            del data["unclaimed"]
+        return data
 
 
 class CanHealth(BaseModel):

@@ -7,7 +7,7 @@ it is exact, untampered, and made against the state the machine is still in.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from reconciler.workflow.sync import Followed
     from schemas.desired import DesiredState
     from schemas.plan import Plan
-    from schemas.record import DesiredRef
+    from schemas.record import AppRecord, DesiredRef
 
 
 @dataclass(frozen=True)
@@ -171,20 +171,24 @@ def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
                                resume=options.resume, desired=desired)
     execute(made, ctx, progress=lambda text: report(Progress(text)),
             keep=options.keep_generations)
-    return Applied(len(made.steps), standing(machine, ctx.record.app), log)
+    return Applied(len(made.steps), standing(machine, ctx.record.apps), log)
 
 
-def standing(machine: Machine, app: object = None) -> str:
-    """The installed app as it stands, its unit asked of the service manager."""
+def standing(machine: Machine, apps: Sequence[AppRecord] | None = None) -> str:
+    """The installed apps as they stand (the record's, unless given), each unit asked of
+    the service manager."""
     from reconciler.state import read_record
-    from schemas.record import AppRecord
 
-    current = app if isinstance(app, AppRecord) else read_record(machine.layout).app
-    if current is None:
+    current = read_record(machine.layout).apps if apps is None else apps
+    if not current:
         return "no app"
-    where = f"{current.name} {current.status}"
-    if current.service is not None and current.status == "running":
-        state = machine.services.state(current.service)
+    return "; ".join(_standing(machine, app) for app in current)
+
+
+def _standing(machine: Machine, app: AppRecord) -> str:
+    where = f"{app.name} {app.status}"
+    if app.service is not None and app.status == "running":
+        state = machine.services.state(app.service)
         where += f" ({state.describe()})" if state.known else \
             f" (unverified: {state.describe()}; the scripts reported success)"
     return where
@@ -198,8 +202,8 @@ def _release(machine: Machine, report: Report) -> None:
     if hold is not None:
         record = write_record(machine.layout, record.model_copy(update={"hold": None}))
         report(Progress(f"Released the hold on generation {hold.generation}."))
-    app = record.app
-    if app is not None and app.held:
-        write_record(machine.layout, record.model_copy(
-            update={"app": app.model_copy(update={"held": False})}))
-        report(Progress(f"Released the operator's stop of {app.name}."))
+    for app in record.apps:
+        if app.held:
+            record = write_record(machine.layout, record.with_app(
+                app.name, app.model_copy(update={"held": False})))
+            report(Progress(f"Released the operator's stop of {app.name}."))

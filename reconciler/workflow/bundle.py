@@ -80,8 +80,8 @@ def _pinned(machine: Machine, url: str, tip: str, report: Report) -> list[Entry]
         targets = resolve(desired, base_dir=Path("/"), store=store, fetch=Fetch.OBJECTS,
                           root=machine.layout.root)
         repos = list(targets.repositories)
-        if targets.app is not None:
-            repos += [r.repo for r in targets.app.deps.ros]
+        for app in targets.apps:
+            repos += [r.repo for r in app.deps.ros]
         for repo in repos:
             if repo.commit is None:
                 raise LpamError(f"{label}: {repo.key} could not be resolved")
