@@ -12,6 +12,7 @@ publishes exactly the file it published before.
 
 from __future__ import annotations
 
+import argparse
 import json
 from datetime import datetime, timezone
 from pathlib import Path
@@ -19,6 +20,8 @@ from pathlib import Path
 import pytest
 
 from reconciler import status
+from reconciler.adapters.services.memory import MemoryServices
+from reconciler.cli import again
 from reconciler.errors import LpamError
 from reconciler.layout import Layout
 from reconciler.planning.lifecycle import operator_steps
@@ -27,6 +30,8 @@ from reconciler.publication import fingerprint, read_status_file, status_file
 from reconciler.state import write_record
 from reconciler.unit import UnitState
 from reconciler.workflow import fleet
+from reconciler.workflow.logs import app_logs, new_output
+from reconciler.workflow.machine import Machine
 from reconciler.workflow.operate import chosen_apps
 from schemas.agent import AgentStatus
 from schemas.generation import AppGeneration
@@ -214,3 +219,40 @@ def test_a_car_with_one_app_publishes_the_file_it_published_before() -> None:
     assert "apps" not in json.loads(status_file(AGENT, app, None, [app]))
     read = read_status_file(status_file(AGENT, app), where=WHERE)
     assert read is not None and [a.name for a in read.installed()] == ["controller"]
+
+
+def logged_car(layout: Layout) -> tuple[Machine, MemoryServices]:
+    """The three apps installed, each unit known to its manager, each having printed two
+    lines."""
+    write_record(layout, car())
+    services = MemoryServices(known_units={f"lpam-app-{n}" for n in CLAIMS},
+                              output={f"lpam-app-{n}": [f"{n} up", f"{n} tick"]
+                                      for n in CLAIMS})
+    return Machine(layout, given_services=services), services
+
+
+def test_logs_of_one_app_show_its_output_alone(layout: Layout) -> None:
+    machine, _ = logged_car(layout)
+    shown = app_logs(machine, 5, "tracker")
+    assert (shown.lines, shown.unit) == (["tracker up", "tracker tick"], "lpam-app-tracker")
+    with pytest.raises(LpamError) as refused:
+        app_logs(machine, 5, "recordr")
+    assert refused.value.hint == "installed: controller, recorder, tracker"
+
+
+def test_logs_without_a_name_show_every_app_each_line_under_its_name(layout: Layout) -> None:
+    machine, services = logged_car(layout)
+    assert app_logs(machine, 1).lines == [
+        "controller | controller tick", "recorder | recorder tick", "tracker | tracker tick"]
+    shown = app_logs(machine, 2)
+    assert shown.notes == [] and len(shown.lines) == 6
+    services.output["lpam-app-recorder"].append("recorder wrote a bag")
+    follow = new_output(machine, shown, sleep=lambda s: None)
+    assert next(follow) == "recorder | recorder wrote a bag"
+
+
+def test_a_stop_cut_off_goes_on_with_the_app_it_named() -> None:
+    stop = argparse.Namespace(command="stop", app="recorder", root=None, file=None)
+    assert again(stop) == "lpam stop recorder"
+    assert again(argparse.Namespace(command="start", app=None, root=None, file=None)) == \
+        "lpam start"
