@@ -7,7 +7,8 @@ What a user checks: `lpam status --json` lists the three, each running with its 
 `lpam stop recorder` stops the recorder's process and no other (the others' pids are the
 same), and holds the recorder alone; `lpam start` starts it again; `lpam logs tracker`
 shows the tracker's output and no other app's; `lpam logs` with no name shows every app's,
-each line under its app's name; a name that is not installed is refused naming the three.
+each line under its app's name; a name that is not installed is refused naming the three;
+`lpam restart` with no name restarts all three.
 The supervisord is stopped by its pid at the end (test_services.py's `lpam` fixture).
 """
 
@@ -122,3 +123,10 @@ def test_three_apps_each_operated_alone_and_each_shown(
     unknown = lpam("logs", "recordr")
     assert unknown.returncode != 0 and "controller, recorder, tracker" in unknown.stderr
     assert lpam("plan", "--detailed-exitcode").returncode == 0
+
+    again = lpam("restart")  # no name: every installed app, each its own process
+    assert again.returncode == 0, again.stderr
+    assert "Restarted controller, recorder, tracker." in again.stdout
+    restarted = pids(lpam)
+    assert all(isinstance(pid, int) and alive(pid) for pid in restarted.values()), restarted
+    assert all(restarted[n] != after[n] and not alive(int(str(after[n]))) for n in NAMES)
