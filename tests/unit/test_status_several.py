@@ -16,6 +16,7 @@ import argparse
 import json
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -78,6 +79,14 @@ def manager(stopped: frozenset[str] = frozenset()) -> dict[str, UnitState]:
             for i, n in enumerate(CLAIMS)}
 
 
+def recorder_stopped(layout: Layout) -> dict[str, Any]:
+    """The car after `lpam stop recorder`: recorded held, its unit inactive; what status
+    is asked with (the store, the manager)."""
+    write_record(layout, car("installed", held=True))
+    units = manager(stopped=frozenset({"recorder"}))
+    return {"store": store(), "state": units.__getitem__, "manager": "supervisord"}
+
+
 @pytest.fixture
 def layout(tmp_path: Path) -> Layout:
     return Layout(tmp_path / "root")
@@ -86,10 +95,7 @@ def layout(tmp_path: Path) -> Layout:
 def test_status_json_lists_every_installed_app_and_keeps_app_the_first(
     layout: Layout
 ) -> None:
-    write_record(layout, car("installed", held=True))
-    units = manager(stopped=frozenset({"recorder"}))
-    shown = status.as_json(layout, store=store(), state=units.__getitem__,
-                           manager="supervisord")
+    shown = status.as_json(layout, **recorder_stopped(layout))
     assert shown["app"]["name"] == "controller" and "claims" not in shown["app"]
     every = {a["name"]: a for a in shown["installed"]}
     assert [a["name"] for a in shown["installed"]] == ["controller", "recorder", "tracker"]
@@ -112,10 +118,7 @@ def test_status_json_lists_every_installed_app_and_keeps_app_the_first(
 def test_status_table_shows_each_apps_state_generation_claims_and_unit(
     layout: Layout
 ) -> None:
-    write_record(layout, car("installed", held=True))
-    units = manager(stopped=frozenset({"recorder"}))
-    lines = status.as_table(layout, store=store(), state=units.__getitem__,
-                            manager="supervisord").splitlines()
+    lines = status.as_table(layout, **recorder_stopped(layout)).splitlines()
     table = {line.split()[3]: line for line in lines[1:4]}
     assert set(table) == set(CLAIMS)
     assert "running" in table["controller"].split() and "stopped by operator" in \
