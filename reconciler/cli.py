@@ -42,10 +42,10 @@ VALIDATE_KINDS = ("desired-state", "catalog", "repository", "agent", "plan")
 """The values of reconciler.validation.Kind, spelled out: the parser is built before any
 command runs, and `lpam --version` must not import the schemas."""
 OPERATOR_ACTIONS = (
-    ("start", "start the installed app now (ends an operator stop)"),
-    ("stop", "stop the installed app; it stays stopped until `lpam start` or a change of the "
-     "desired state"),
-    ("restart", "stop and start the installed app"),
+    ("start", "start the installed apps (or APP) now (ends an operator stop)"),
+    ("stop", "stop the installed apps (or APP); each stays stopped until `lpam start` or a "
+     "change of the desired state"),
+    ("restart", "stop and start the installed apps (or APP)"),
 )
 """schemas.operator.OperatorAction's values (spelled out for the same reason), each with
 its help."""
@@ -151,13 +151,18 @@ def _status_operate(new: New) -> None:
     _add(new("status", "show repositories and apps"), "json", "services")
     for action, what in OPERATOR_ACTIONS:
         operate = new(action, what)
+        operate.add_argument("app", nargs="?", metavar="APP",
+                             help="that installed app only (default: every installed app)")
         _add(operate, "file", help="desired state whose update gates apply (default: under "
              "--root)")
         _add(operate, "wait", "force", "lock-timeout", "services", "script-timeout")
 
 
 def _logs_history_rollback(new: New) -> None:
-    logs = new("logs", "the installed app's recent output")
+    logs = new("logs", "the installed apps' recent output")
+    logs.add_argument("app", nargs="?", metavar="APP",
+                      help="that installed app only (default: every installed app, each "
+                      "line prefixed with its name when there are several)")
     logs.add_argument("-n", "--lines", type=int, default=50, help="how many lines (default 50)")
     logs.add_argument("-f", "--follow", action="store_true", help="keep printing new output")
     _add(logs, "services")
@@ -309,6 +314,8 @@ def again(args: argparse.Namespace) -> str:
     if root:
         parts += ["--root", str(root)]
     parts.append(resumed_by(args.command))
+    if args.command in ("start", "stop", "restart") and getattr(args, "app", None):
+        parts.append(args.app)  # a stop of one app goes on with that app, no other
     if args.command != "rollback" and getattr(args, "file", None) is not None:
         parts += ["-f", str(args.file)]
     if getattr(args, "config", None) is not None:
@@ -399,13 +406,15 @@ def _confirm(args: argparse.Namespace) -> bool:
 
 
 def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
-    """`lpam start|stop|restart`: on the installed app now, journalled like an apply."""
+    """`lpam start|stop|restart [APP]`: on the installed apps (or APP) now, journalled
+    like an apply."""
     from reconciler.workflow.operate import operate_installed
     from schemas.operator import OperatorAction
 
     print(operate_installed(_machine(args, layout), OperatorAction(args.command),
                             file=args.file, force=args.force,
-                            options=_options(args, wait=args.wait), report=Terminal()))
+                            options=_options(args, wait=args.wait), report=Terminal(),
+                            app=args.app))
     return EXIT_OK
 
 
@@ -452,11 +461,11 @@ def cmd_gates(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
-    """The installed app's output (reconciler/workflow/logs.py says from where)."""
+    """The installed apps' output, or APP's (reconciler/workflow/logs.py says from where)."""
     from reconciler.workflow.logs import app_logs, new_output
 
     machine = _machine(args, layout)
-    shown = app_logs(machine, max(args.lines, 1))
+    shown = app_logs(machine, max(args.lines, 1), args.app)
     for note in shown.notes:
         print(f"note: {note}", file=sys.stderr)
     for line in shown.lines:

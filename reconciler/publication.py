@@ -16,7 +16,9 @@ What counts as a change (`essentials`), exactly:
   that applied is no news), and its reason, except a deferral's: that names the seconds
   and the speed of the moment ("stationary for 12 s") and would make every deferred pass
   news; that the pass was deferred still counts;
-- the app: its name, generation, lifecycle status and whether it runs;
+- the app: its name, generation, lifecycle status and whether it runs — with several
+  apps installed, each app's (with one app or none the essentials are what they were, so
+  a car upgraded to an lpam that knows several apps publishes nothing new for it);
 - a local override (a phone's or libpanda-app-manager's edit): who, since when, how many
   edits.
 
@@ -41,14 +43,15 @@ dropped commits become unreachable and the server's garbage collection removes t
 
 What is published (`status_file`, read back by `read_status_file`): one file, `status.json`,
 a typed and versioned document (schemas/fleet.py `CarStatus`); the files of cars that
-published before it had a version are read through its migration.
+published before it had a version are read through its migration. `app` is the first
+installed app; a car running several apps also writes `apps`, every one of them.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -78,16 +81,26 @@ APP_FIELDS = ("name", "generation", "status", "running")
 """What the fleet sees of the installed app (from `lpam status --json`)."""
 
 
+def _several(apps: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]] | None:
+    """What the fleet sees of every installed app, or None with one app or none (then
+    `app` says it all, as before several apps)."""
+    if len(apps) <= 1:
+        return None
+    return [{key: a.get(key) for key in APP_FIELDS} for a in apps]
+
+
 def essentials(status: AgentStatus, app: Mapping[str, Any] | None,
-               override: LocalOverride | None = None) -> dict[str, Any]:
-    """What of this status counts as a change: see the module docstring."""
+               override: LocalOverride | None = None,
+               apps: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
+    """What of this status counts as a change: see the module docstring. `app` is the
+    first installed app, `apps` every one (as `lpam status --json` lists them)."""
     last = status.last_attempt
     attempt = None
     if last is not None:
         result = "converged" if last.result in CONVERGED else last.result
         reason = None if last.result in VOLATILE_REASONS else last.reason
         attempt = {"revision": last.revision, "result": result, "reason": reason}
-    return {
+    found: dict[str, Any] = {
         "vehicle": status.vehicle,
         "follows": status.follows,
         "desired_revision": status.desired_revision,
@@ -97,12 +110,18 @@ def essentials(status: AgentStatus, app: Mapping[str, Any] | None,
         "override": None if override is None else {"since": override.since, "by": override.by,
                                                    "edits": override.edits},
     }
+    several = _several(apps)
+    if several is not None:
+        found["apps"] = several
+    return found
 
 
 def fingerprint(status: AgentStatus, app: Mapping[str, Any] | None,
-                override: LocalOverride | None = None) -> str:
+                override: LocalOverride | None = None,
+                apps: Sequence[Mapping[str, Any]] = ()) -> str:
     """A digest of the essentials: equal exactly when nothing that counts changed."""
-    text = json.dumps(essentials(status, app, override), sort_keys=True, separators=(",", ":"))
+    text = json.dumps(essentials(status, app, override, apps), sort_keys=True,
+                      separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
@@ -135,11 +154,15 @@ def keeps_parent(length: int, bound: int = HISTORY) -> bool:
 
 
 def status_file(status: AgentStatus, app: Mapping[str, Any] | None,
-                override: LocalOverride | None = None) -> bytes:
-    """The file a car publishes: its agent's status, what the fleet sees of its app, and a
-    local override in force."""
+                override: LocalOverride | None = None,
+                apps: Sequence[Mapping[str, Any]] = ()) -> bytes:
+    """The file a car publishes: its agent's status, what the fleet sees of its app (the
+    first installed) and, when several are installed, of every app, and a local override
+    in force. A car with one app or none writes no `apps`: its file is what it was."""
     shown = None if app is None else PublishedApp(**{key: app.get(key) for key in APP_FIELDS})
-    body = CarStatus(agent=status, app=shown, override=override).model_dump(mode="json")
+    several = [PublishedApp(**a) for a in _several(apps) or []]
+    document = CarStatus(agent=status, app=shown, override=override, apps=several)
+    body = document.model_dump(mode="json", exclude=set() if several else {"apps"})
     return (json.dumps(body, indent=2, sort_keys=True) + "\n").encode("utf-8")
 
 

@@ -6,7 +6,13 @@ link (`service -> /etc/shadow`, or an app folder linking to `/etc`), and a check
 edited, while a blob is exactly what was committed and a link in git is never followed.
 It never loads the graph stack, and reads nothing it does not show.
 
-Whether the app runs is asked of its service manager (the live state), not taken from the
+Every installed app is shown (a car may run a controller beside a recorder and a
+tracker, issue 22): `--json` keeps `app`, the first installed app, for the readers from
+before several apps, and lists every one under `installed`, each with its generation,
+its claims and its unit now; the table shows a row per app, and with several apps a line
+under it per installed app. A car with one app shows exactly what it showed before.
+
+Whether an app runs is asked of its service manager (the live state), not taken from the
 record: the record says what lpam last did, the manager what runs now. Where the manager
 cannot know the app's unit, the record's word is shown, marked unverified.
 
@@ -19,7 +25,7 @@ are shown as ever: status must answer most when something is wrong.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -136,17 +142,20 @@ def _damaged(common: dict[str, str], damage: str) -> Row:
 
 def rows(
     layout: Layout, *, record: StateRecord | None = None, store: Objects | None = None,
-    live: UnitState | None = None,
+    live: UnitState | None = None, lives: Mapping[str, UnitState] | None = None,
 ) -> list[Row]:
-    """Every app of every recorded repository at its recorded commit, and the installed app
-    even when no catalog lists it any more (it is the one that may hold the CAN hardware)."""
+    """Every app of every recorded repository at its recorded commit, and each installed
+    app even when no catalog lists it any more (it may be the one that holds the CAN
+    hardware). `lives`: each installed app's unit as its manager sees it, by name; `live`,
+    the one-app world's only app's."""
     if store is None:
         from reconciler.adapters.git import GitStore
 
         store = GitStore(layout)
     if record is None:
         record = read_record(layout)
-    installed = record.app
+    if lives is None:
+        lives = {} if live is None or record.app is None else {record.app.name: live}
     table: list[Row] = []
     for repo in record.repositories:
         common = {"repository": repo.key, "ref": repo.ref or "(default)",
@@ -176,12 +185,14 @@ def rows(
             table.append(_note(common, f"(catalog unreadable: {exc.message})"))
             continue
         for app in catalog.apps:
-            mine = (installed is not None and installed.name == app.name
-                    and installed.repository == repo.key)
-            table.append(_app_row(store, common, app, installed if mine else None,
-                                  key=repo.key, commit=repo.commit, live=live))
-    if installed is not None and not any(r.installed for r in table):
-        table.append(_unlisted(store, record, installed, live))
+            installed = record.installed(app.name)
+            mine = installed if installed is not None and installed.repository == repo.key \
+                else None
+            table.append(_app_row(store, common, app, mine, key=repo.key,
+                                  commit=repo.commit, live=lives.get(app.name)))
+    shown = {r.app for r in table if r.installed}
+    table += [_unlisted(store, record, a, lives.get(a.name))
+              for a in record.apps if a.name not in shown]
     return table
 
 
@@ -198,34 +209,51 @@ def _unlisted(store: Objects, record: StateRecord, installed: AppRecord,
                     commit=installed.commit, live=live)
 
 
-def _live(record: StateRecord, state: Callable[[str], UnitState] | None) -> UnitState | None:
-    app = record.app
-    if app is None or app.service is None or state is None:
-        return None
-    return state(app.service)
+def _lives(record: StateRecord,
+           state: Callable[[str], UnitState] | None) -> dict[str, UnitState]:
+    """Each installed app's unit as its manager sees it now, by app name (an app that
+    names no unit has none)."""
+    if state is None:
+        return {}
+    return {a.name: state(a.service) for a in record.apps if a.service is not None}
+
+
+def _app_json(app: AppRecord, live: UnitState | None) -> dict[str, Any]:
+    """One installed app as `--json` shows it: what lpam did, what its manager says."""
+    runs, verified = _running(app, live)
+    return {
+        "name": app.name, "repository": app.repository, "commit": app.commit,
+        "generation": app.generation, "params": app.params, "running": runs,
+        "verified": verified, "status": app.status, "held": app.held,
+        "good": app.good,
+        "unit": None if live is None else {
+            "name": live.name, "known": live.known, "active": live.active,
+            "sub": live.sub, "restarts": live.restarts, "pid": live.pid,
+            "supervised": live.supervised},
+        "command": app.command, "launch": app.launch, "user": app.user,
+    }
+
+
+def _installed_json(record: StateRecord, lives: Mapping[str, UnitState]
+                    ) -> list[dict[str, Any]]:
+    """Every installed app, in the order they were installed, with what it claims
+    (`claims_known` false: recorded before lpam knew claims, taken as the panda's)."""
+    return [{**_app_json(a, lives.get(a.name)), "claims": sorted(a.claims),
+             "claims_known": a.resources is not None} for a in record.apps]
 
 
 def as_json(layout: Layout, *, store: Objects | None = None,
             state: Callable[[str], UnitState] | None = None,
             manager: str | None = None) -> dict[str, Any]:
-    """`state` asks the service manager (`manager`) about a unit."""
+    """`state` asks the service manager (`manager`) about a unit. `app` is the first
+    installed app (what readers before several apps read), `installed` every one."""
     record = read_record(layout)  # once: an apply may rewrite it while status runs
     app = record.app
-    live = _live(record, state)
-    runs, verified = _running(app, live) if app is not None else (False, None)
+    lives = _lives(record, state)
     last = record.last_apply
     return {
-        "app": None if app is None else {
-            "name": app.name, "repository": app.repository, "commit": app.commit,
-            "generation": app.generation, "params": app.params, "running": runs,
-            "verified": verified, "status": app.status, "held": app.held,
-            "good": app.good,
-            "unit": None if live is None else {
-                "name": live.name, "known": live.known, "active": live.active,
-                "sub": live.sub, "restarts": live.restarts, "pid": live.pid,
-                "supervised": live.supervised},
-            "command": app.command, "launch": app.launch, "user": app.user,
-        },
+        "app": None if app is None else _app_json(app, lives.get(app.name)),  # the first
+        "installed": _installed_json(record, lives),
         "service_manager": manager,
         "last_apply": None if last is None else {**last.model_dump(mode="json"),
                                                  "shown": _last_apply(layout, record)},
@@ -238,7 +266,7 @@ def as_json(layout: Layout, *, store: Objects | None = None,
             for r in record.repositories if r.applied != r.commit
         ],
         "holds": holds(record),
-        "apps": [asdict(r) for r in rows(layout, record=record, store=store, live=live)],
+        "apps": [asdict(r) for r in rows(layout, record=record, store=store, lives=lives)],
         "strays": [
             {"name": s.name, "generation": s.generation, "stopped": s.stopped,
              "pending": s.pending}
@@ -300,15 +328,15 @@ def as_table(layout: Layout, *, store: Objects | None = None,
              state: Callable[[str], UnitState] | None = None,
              manager: str | None = None) -> str:
     record = read_record(layout)
-    live = _live(record, state)
-    table = rows(layout, record=record, store=store, live=live)
+    lives = _lives(record, state)
+    table = rows(layout, record=record, store=store, lives=lives)
     strays = [f"Installed without a record: {_cell(s.name)} (generation "
               f"{_cell(s.generation)}); `lpam apply` stops and uninstalls it before "
               "installing any app." for s in record.strays]
     strays += [f"Repository {_cell(r.repository)}: its copy in the store is damaged: "
                f"{printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
                "anew." for r in table if r.damage is not None]
-    strays += _footer(layout, record, live, manager) + _agent_footer(layout)
+    strays += _footer(layout, record, lives, manager) + _agent_footer(layout)
     deferred = _deferred(layout)
     if deferred is not None:
         strays.append(f"Cutover deferred at {deferred['time']} (the update gates): "
@@ -325,21 +353,44 @@ def as_table(layout: Layout, *, store: Objects | None = None,
     return "\n".join([*lines, *strays])
 
 
-def _footer(layout: Layout, record: StateRecord, live: UnitState | None,
+def _footer(layout: Layout, record: StateRecord, lives: Mapping[str, UnitState],
             manager: str | None) -> list[str]:
-    """The lines under the table: the app's unit as its manager sees it, checkouts that
-    are not what runs, the holds and how each ends, the last apply."""
+    """The lines under the table: each app's unit as its manager sees it (with several
+    apps, each app's generation and claims too), checkouts that are not what runs, the
+    holds and how each ends, the last apply."""
     lines = []
-    if live is not None:
-        how = live.describe() if live.known else \
-            f"{live.describe()}: running is what the app's scripts reported (unverified)"
-        lines.append(f"Service manager: {manager or '?'}; {printable(how)}")
+    if len(record.apps) > 1:
+        lines += _apps_footer(record, lives, manager)
+    elif record.app is not None and record.app.name in lives:
+        live = lives[record.app.name]
+        lines.append(f"Service manager: {manager or '?'}; {printable(_unit_said(live))}")
     lines += [printable(line) for line in _checkouts(record)]
     lines += [printable(f"Held: {h['what']}; it ends {h['ends']}.") for h in holds(record)]
     shown = _last_apply(layout, record)
     if shown is not None:
         lines.append(printable(f"Last apply: {shown}"))
     return lines + _cutover_footer(record)
+
+
+def _unit_said(live: UnitState) -> str:
+    return live.describe() if live.known else \
+        f"{live.describe()}: running is what the app's scripts reported (unverified)"
+
+
+def _apps_footer(record: StateRecord, lives: Mapping[str, UnitState],
+                 manager: str | None) -> list[str]:
+    """Several apps: one line each, in the order they were installed — its generation,
+    its lifecycle, what it claims (what no other app may hold) and its unit now."""
+    lines = [f"Installed apps: {len(record.apps)}; service manager: {manager or '?'}"]
+    for app in record.apps:
+        live = lives.get(app.name)
+        runs, _ = _running(app, live)
+        claims = ", ".join(sorted(app.claims)) or "nothing exclusive"
+        known = "" if app.resources is not None else " (not recorded: taken as the panda's)"
+        unit = _unit_said(live) if live is not None else "no unit"
+        lines.append(printable(f"  {app.name} (generation {app.generation}): "
+                               f"{_status(app, runs)}; claims {claims}{known}; {unit}"))
+    return lines
 
 
 def _checkouts(record: StateRecord) -> list[str]:
@@ -369,13 +420,14 @@ def holds(record: StateRecord) -> list[dict[str, str]]:
             "against": against,
             "ends": f"when the desired state last applied ({against}) changes, or with "
             "`lpam apply --release`"})
-    app = record.app
-    if app is not None and app.held:
-        found.append({
-            "kind": "operator stop", "what": f"{app.name} was stopped by `lpam stop` and "
-            "stays stopped", "against": against,
-            "ends": f"with `lpam start`, when the desired state last applied ({against}) "
-            "changes, or with `lpam apply --release`"})
+    start = "`lpam start`" if len(record.apps) <= 1 else "`lpam start {name}`"
+    for app in record.apps:  # an operator's stop holds one app
+        if app.held:
+            found.append({
+                "kind": "operator stop", "what": f"{app.name} was stopped by `lpam stop` "
+                "and stays stopped", "against": against,
+                "ends": f"with {start.format(name=app.name)}, when the desired state last "
+                f"applied ({against}) changes, or with `lpam apply --release`"})
     return found
 
 

@@ -2,10 +2,15 @@
 repository (`status.json`), which `lpam fleet status` reads in any clone.
 
 Version 2 adds `override`: a local edit the car runs instead of its fleet file
-(migrations/car_status_v1_to_v2.py). Files published before version 1 carry no `version`
-(version 0): the same two parts, the agent's status as that car's lpam wrote it (an agent
-status version 1 or 2) and the app; migrations/car_status_v0_to_v1.py brings one to version
-1. Written and read in one place, reconciler/publication.py.
+(migrations/car_status_v1_to_v2.py). A car that runs several apps (issue 22) adds `apps`,
+every installed app, to a version 2 file: an optional field, absent (empty) in the files
+of cars with one app or none, which stay exactly what they were — so an lpam from before
+several apps still reads them, and `app` (the first installed app) keeps its meaning.
+
+Files published before version 1 carry no `version` (version 0): the same two parts, the
+agent's status as that car's lpam wrote it (an agent status version 1 or 2) and the app;
+migrations/car_status_v0_to_v1.py brings one to version 1. Written and read in one place,
+reconciler/publication.py.
 """
 
 from __future__ import annotations
@@ -40,3 +45,13 @@ class CarStatus(BaseModel):
     override: LocalOverride | None = Field(
         default=None, description="a local edit (phone, libpanda-app-manager) the car runs "
         "instead of its fleet file, until it is released")
+    apps: list[PublishedApp] = Field(
+        default_factory=list, description="every installed app, in the order they were "
+        "installed, when the car runs several (`app` is the first); empty: `app` alone "
+        "says what runs")
+
+    def installed(self) -> list[PublishedApp]:
+        """Every app the car reported installed, whichever shape its file has."""
+        if self.apps:
+            return list(self.apps)
+        return [] if self.app is None else [self.app]

@@ -30,6 +30,8 @@ generation is staged (during preparation), installed and started.
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 from reconciler.planning.model import UNKNOWN, AppTarget, GenerationKey, HealthTarget
 from reconciler.unit import UnitState
 from schemas.generation import AppGeneration, GenerationFields, StrayGeneration
@@ -304,21 +306,34 @@ def _refreshed_app(app: AppRecord, live: UnitState | None) -> AppRecord:
 
 
 def operator_steps(record: StateRecord, action: OperatorAction,
-                   generations: frozenset[GenerationKey]) -> list[Step]:
-    """`lpam start|stop|restart` on the installed app, by the same rules as any plan: a
-    script that was cut off is finished first, and nothing is started beside a stray."""
-    app = record.app
-    if app is None:
+                   generations: frozenset[GenerationKey], *,
+                   names: Collection[str] | None = None) -> list[Step]:
+    """`lpam start|stop|restart` on the installed apps `names` (None: every one), by the
+    same rules as any plan: a script that was cut off is finished first, and nothing is
+    started beside a stray. The record is restricted to the chosen apps and planned as a
+    set (planning/ensemble.py), each app kept at its own generation: no other app's step
+    can be among them, and one chosen app is the one-app world's plan exactly."""
+    from reconciler.planning.ensemble import set_steps  # it builds on this module
+
+    chosen = [a for a in record.apps if names is None or a.name in names]
+    if not chosen:
         return []
-    current = target_of(app)
+    wanted = [target_of(a) for a in chosen]
+    operated = [_operated(a, action) for a in chosen]
+    restricted = record.model_copy(update={"apps": operated})
+    return set_steps(restricted, wanted, generations, start=action != OperatorAction.STOP,
+                     verify=False)
+
+
+def _operated(app: AppRecord, action: OperatorAction) -> AppRecord:
+    """The app as an operator's command plans it: a stop keeps it as it is (its hold, once
+    written, keeps it stopped); a start ends the hold; a restart of an app that may run
+    first finishes a stop."""
     if action == OperatorAction.STOP:
-        return app_steps(record, current, generations, start=False)
+        return app
     if action == OperatorAction.RESTART and app.status in ("running", "starting"):
-        record = record.model_copy(update={"app": app.model_copy(update={"status": "stopping",
-                                                                      "held": False})})
-    else:
-        record = record.model_copy(update={"app": app.model_copy(update={"held": False})})
-    return app_steps(record, current, generations, verify=False)
+        return app.model_copy(update={"status": "stopping", "held": False})
+    return app.model_copy(update={"held": False})
 
 
 def strays_refreshed(record: StateRecord, live: dict[str, UnitState]) -> StateRecord:

@@ -4,9 +4,10 @@ Each car publishes its status to the branch `status/<vehicle>` of the desired-st
 repository when it changed and at least every heartbeat (workflow/sync.py `publish`,
 reconciler/publication.py). In any clone of that repository, after a fetch, this reads
 those branches and says per vehicle which file of the repository it follows, which
-revision it applied against the branch the cars follow, its app, whether it runs, how its
-last pass ended, and how old its last report is — no server, no database, nothing but refs
-and one small file per car. The age is measured against the clock the caller passes in.
+revision it applied against the branch the cars follow, its apps (a car may run several:
+each is named, with whether it runs), how its last pass ended, and how old its last report
+is — no server, no database, nothing but refs and one small file per car. The age is
+measured against the clock the caller passes in.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ class Vehicle:
     reason: str | None
     last_seen: str  # when the car last reported (its status commit's time)
     override: str | None = None  # a local override in force: "phone since <time>"
+    apps: tuple[dict[str, Any], ...] = ()  # every installed app reported (`app` the first)
 
 
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
@@ -72,7 +74,26 @@ def _row(vehicle: str, status: CarStatus, tip: str | None, when: datetime) -> Ve
         last_pass=None if last is None else last.result,
         reason=None if last is None else last.reason, last_seen=_seen(when),
         override=None if status.override is None else
-        f"{status.override.by} since {status.override.since}")
+        f"{status.override.by} since {status.override.since}",
+        apps=tuple(a.model_dump(mode="json") for a in status.installed()))
+
+
+YES_NO = {True: "yes", False: "no", None: "?"}
+
+
+def _apps(row: Vehicle) -> str:
+    """The App cell: the app, or with several installed each one's name, in order."""
+    if len(row.apps) > 1:
+        return ", ".join(str(a.get("name") or "?") for a in row.apps)
+    return row.app or "-"
+
+
+def _running(row: Vehicle) -> str:
+    """The Running cell: the app's, or with several apps each one's, in the App cell's
+    order (`yes, no, yes`)."""
+    if len(row.apps) > 1:
+        return ", ".join(YES_NO[a.get("running")] for a in row.apps)
+    return YES_NO[row.running]
 
 
 def _seen(when: datetime) -> str:
@@ -107,9 +128,9 @@ def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
     header = ("Vehicle", "Follows", "Applied", "Current", "App", "Running", "Last pass",
               "Last report")
     cells: list[tuple[str, ...]] = [(r.vehicle, r.follows or "?", (r.applied or "none")[:12],
-              {True: "yes", False: "no", None: "?"}[r.up_to_date],
-              (r.app or "-") + (f" (local override: {r.override})" if r.override else ""),
-              {True: "yes", False: "no", None: "?"}[r.running],
+              YES_NO[r.up_to_date],
+              _apps(r) + (f" (local override: {r.override})" if r.override else ""),
+              _running(r),
               (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""),
               ago(age(r, now)))
              for r in rows]

@@ -1,4 +1,4 @@
-"""The logs use case: what the installed app printed, from wherever that is known.
+"""The logs use case: what the installed apps printed, from wherever that is known.
 
 A scriptless app's unit, and a script app's unit that the service manager knows, have
 their output in the manager (supervisord's log file, systemd's journal). A script app
@@ -16,10 +16,14 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from reconciler.errors import LpamError
 from reconciler.layout import Layout
 from reconciler.workflow.machine import Machine
+
+if TYPE_CHECKING:
+    from schemas.record import AppRecord
 
 LOG_FILES = 50  # run logs looked at, newest first: enough for weeks of applies
 READ_LIMIT = 1024 * 1024  # bytes of one run log
@@ -28,21 +32,68 @@ FOLLOW_LINES = 200  # asked of the manager each second while following
 
 @dataclass(frozen=True)
 class Shown:
-    """Lines to print, notes to say beside them, and whether `-f` can follow the source."""
+    """Lines to print, notes to say beside them, and what `-f` can follow: one app's unit
+    (`unit`), or with several apps each app's unit, by app name (`units`, whose lines
+    are prefixed with the app's name as `lines` are)."""
 
     lines: list[str]
     notes: list[str] = field(default_factory=list)
     unit: str | None = None  # the unit to follow, when its manager has its output
+    units: dict[str, str] = field(default_factory=dict)
+    seen: dict[str, list[str]] = field(default_factory=dict)  # each unit's lines shown
 
 
-def app_logs(machine: Machine, lines: int) -> Shown:
-    """The installed app's last `lines` lines of output."""
+def app_logs(machine: Machine, lines: int, app: str | None = None) -> Shown:
+    """The last `lines` lines of output of the installed app `app`, or with no name, of
+    the only installed app — or of every installed app when there are several: `lpam
+    logs` then shows each app's last lines in turn (the order they were installed), each
+    line prefixed with `APP | ` as `docker compose logs` does, which is what a user who
+    typed no name expects; notes name the app too. An unknown name is refused, naming
+    the installed apps."""
     from reconciler.state import read_record
 
-    app = read_record(machine.layout).app
-    if app is None:
+    installed = read_record(machine.layout).apps
+    if not installed:
         raise LpamError("no app is installed: there is no output to show",
                         hint="install one with `lpam apply`")
+    if app is not None:
+        found = next((a for a in installed if a.name == app), None)
+        if found is None:
+            raise LpamError(f"no installed app is named {app!r}: there is no output to show",
+                            hint=f"installed: {', '.join(a.name for a in installed)}")
+        return one_app_logs(machine, found, lines)
+    if len(installed) == 1:
+        return one_app_logs(machine, installed[0], lines)
+    return _every_app(machine, installed, lines)
+
+
+def _every_app(machine: Machine, installed: list[AppRecord], lines: int) -> Shown:
+    """Each app's output in turn, prefixed with its name; an app with none known is a note,
+    not a failure of the others' (unless no app has any)."""
+    said: list[str] = []
+    notes: list[str] = []
+    units: dict[str, str] = {}
+    seen: dict[str, list[str]] = {}
+    errors: list[str] = []
+    for app in installed:
+        try:
+            shown = one_app_logs(machine, app, lines)
+        except LpamError as exc:
+            errors.append(exc.message)
+            continue
+        said += [f"{app.name} | {line}" for line in shown.lines]
+        notes += [f"{app.name}: {note}" for note in shown.notes]
+        if shown.unit is not None:
+            units[app.name] = shown.unit
+            seen[app.name] = shown.lines
+    if not said and not units:
+        raise LpamError(f"no output of any installed app is known to lpam: {'; '.join(errors)}",
+                        hint=f"their scripts' output would be in {machine.layout.logs}/*.log")
+    return Shown(said, notes + errors, units=units, seen=seen)
+
+
+def one_app_logs(machine: Machine, app: AppRecord, lines: int) -> Shown:
+    """One installed app's last `lines` lines of output."""
     if app.service is not None:
         state = machine.services.state(app.service)
         if state.known:
@@ -62,16 +113,22 @@ def app_logs(machine: Machine, lines: int) -> Shown:
 def new_output(machine: Machine, shown: Shown, *,
                sleep: Callable[[float], None] = time.sleep) -> Iterator[str]:
     """`lpam logs -f`: the lines the app prints after `shown`, as they come, forever; only
-    a unit whose manager has its output can be followed."""
-    if shown.unit is None:
+    a unit whose manager has its output can be followed. With several apps, each app's
+    unit is asked in turn each second, and its new lines prefixed with its name."""
+    if shown.unit is None and not shown.units:
         raise LpamError("cannot follow: the service manager does not have this app's output",
                         hint="the note above says where it is")
-    previous = shown.lines
+    if shown.unit is not None:
+        units, previous = {"": shown.unit}, {"": shown.lines}
+    else:
+        units, previous = dict(shown.units), {n: list(v) for n, v in shown.seen.items()}
     while True:
         sleep(1.0)
-        lines = machine.services.logs(shown.unit, FOLLOW_LINES)
-        yield from lines[overlap(previous, lines):]
-        previous = lines
+        for name, unit in units.items():
+            lines = machine.services.logs(unit, FOLLOW_LINES)
+            fresh = lines[overlap(previous.get(name, []), lines):]
+            yield from (f"{name} | {line}" for line in fresh) if name else fresh
+            previous[name] = lines
 
 
 def overlap(before: list[str], after: list[str]) -> int:

@@ -1,10 +1,12 @@
-"""Operator commands on the installed app — `lpam start|stop|restart|rollback` — run as
-journalled plans through the same executor as every apply.
+"""Operator commands on the installed apps — `lpam start|stop|restart [APP]|rollback` — run
+as journalled plans through the same executor as every apply.
 
 They are what LPAM's `-s`/`-k` and the field tool's `As`/`Ar` did, made safe: under the
 apply lock, by the planner's rules (a cut-off script is finished first, nothing starts
 beside a stray), and written down. An operator's stop *holds*: the record marks the app
 `held`, and plans leave it stopped until `lpam start` or a change of the desired state.
+With several apps installed, a name picks one app and its steps touch no other app's
+process; no name works on every installed app. A hold belongs to each app.
 A rollback returns to the previous good generation with no network, and holds too: until
 the desired state changes, plan and apply report it and propose nothing.
 """
@@ -32,8 +34,8 @@ from reconciler.workflow.gates import governing
 from reconciler.workflow.machine import Machine
 from schemas.desired import DesiredState
 from schemas.operator import OperatorAction
-from schemas.plan import Plan, Step
-from schemas.record import HistoryEntry, Hold
+from schemas.plan import Plan, StartStep, Step
+from schemas.record import AppRecord, HistoryEntry, Hold, StateRecord
 
 ProgressLine = Callable[[str], None]
 
@@ -46,15 +48,17 @@ def _plan(ctx: Context, steps: list[Step], summary: str, now: datetime) -> Plan:
 
 
 def operate_installed(machine: Machine, action: OperatorAction, *, file: Path | None,
-                      force: bool, options: ApplyOptions, report: Report) -> str:
-    """`lpam start|stop|restart`: under the apply lock, obeying the gates of the desired
-    state in force (workflow/gates.py) unless `force`; returns what was done."""
+                      force: bool, options: ApplyOptions, report: Report,
+                      app: str | None = None) -> str:
+    """`lpam start|stop|restart [APP]`: under the apply lock, obeying the gates of the
+    desired state in force (workflow/gates.py) unless `force`; returns what was done.
+    `app`: that installed app only; None: every installed app."""
     gate = governing(machine, file, force=force).gate
     with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         ctx, _ = machine.context(machine.store(), lock, command=str(action),
                                  script_timeout=options.script_timeout, report=report,
                                  gate=gate, gate_wait=options.wait)
-        return operate(ctx, action, progress=lambda text: report(Progress(text)))
+        return operate(ctx, action, progress=lambda text: report(Progress(text)), app=app)
 
 
 def resumed_by(command: str) -> str:
@@ -85,28 +89,69 @@ def roll_back(machine: Machine, *, file: Path | None, force: bool, options: Appl
         return rollback(ctx, entry, desired, progress=lambda text: report(Progress(text)))
 
 
-def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine) -> str:
-    """Start, stop or restart the installed app now; returns what was done."""
-    app = ctx.record.app
-    if app is None:
-        raise LpamError(f"no app is installed: nothing to {action}",
-                        hint="install one with `lpam apply`")
+def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine,
+            app: str | None = None) -> str:
+    """Start, stop or restart installed apps now — `app` only, else every installed app —
+    and return what was done. An operator's stop holds each app it stopped, and only it."""
+    chosen = chosen_apps(ctx.record, app, action)
+    names = [a.name for a in chosen]
     with gates_passed(ctx, progress):
         # The operator's wish is written first, so that a fault cannot undo it: the next
         # run carries out a stop (or a start) that was asked for and cut off.
-        if action == OperatorAction.STOP:
-            ctx.save_app(app.name, app.model_copy(update={"held": True}))
-        elif app.held:
-            ctx.save_app(app.name, app.model_copy(update={"held": False}))
-        steps = operator_steps(ctx.record, action, generations.present(ctx.layout))
+        for one in chosen:
+            if action == OperatorAction.STOP:
+                ctx.save_app(one.name, one.model_copy(update={"held": True}))
+            elif one.held:
+                ctx.save_app(one.name, one.model_copy(update={"held": False}))
+        steps = operator_steps(ctx.record, action, generations.present(ctx.layout),
+                               names=names)
         if steps:
-            execute(_plan(ctx, steps, f"{action} {app.name}", ctx.clock()), ctx,
+            execute(_plan(ctx, steps, f"{action} {', '.join(names)}", ctx.clock()), ctx,
                     progress=progress, record_result=False)
+    if len(chosen) == 1:
+        return _done(action, names[0], bool(steps))
+    return _done_several(action, names, steps)
+
+
+def chosen_apps(record: StateRecord, name: str | None,
+                action: OperatorAction) -> list[AppRecord]:
+    """The installed apps an operator's command works on: the one named, else all; a name
+    that is not installed is refused, naming those that are."""
+    if not record.apps:
+        raise LpamError(f"no app is installed: nothing to {action}",
+                        hint="install one with `lpam apply`")
+    if name is None:
+        return list(record.apps)
+    found = record.installed(name)
+    if found is None:
+        raise LpamError(f"no installed app is named {name!r}: nothing to {action}",
+                        hint=f"installed: {', '.join(a.name for a in record.apps)}")
+    return [found]
+
+
+def _done(action: OperatorAction, name: str, stepped: bool) -> str:
     if action == OperatorAction.STOP:
-        return (f"Stopped {app.name}; it stays stopped until `lpam start` or a change of "
+        return (f"Stopped {name}; it stays stopped until `lpam start` or a change of "
                 "the desired state.")
     verb = "Restarted" if action == OperatorAction.RESTART else "Started"
-    return f"{verb} {app.name}." if steps else f"{app.name} is already running."
+    return f"{verb} {name}." if stepped else f"{name} is already running."
+
+
+def _done_several(action: OperatorAction, names: list[str], steps: list[Step]) -> str:
+    """What an operator's command did to several apps: an app not started by it was
+    already running."""
+    listed = ", ".join(names)
+    if action == OperatorAction.STOP:
+        return (f"Stopped {listed}; each stays stopped until `lpam start` (or `lpam start "
+                "APP`) or a change of the desired state.")
+    verb = "Restarted" if action == OperatorAction.RESTART else "Started"
+    moved = {s.app.name for s in steps if isinstance(s, StartStep)}
+    done = [n for n in names if n in moved]
+    idle = [n for n in names if n not in moved]
+    said = [f"{verb} {', '.join(done)}."] if done else []
+    said += [f"{', '.join(idle)} {'is' if len(idle) == 1 else 'are'} already running."] \
+        if idle else []
+    return " ".join(said)
 
 
 @contextmanager

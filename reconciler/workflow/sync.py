@@ -230,11 +230,13 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     own = read_status(machine)
     if own.vehicle is None:
         return
-    app = machine_status.as_json(machine.layout, state=machine.services.state)["app"]
+    seen = machine_status.as_json(machine.layout, state=machine.services.state)
+    app = seen["app"]
     shown = None if app is None else {k: app[k] for k in APP_FIELDS}
+    every = [{k: a[k] for k in APP_FIELDS} for a in seen["installed"]]  # several apps
     now = machine.clock()
     local = read_override(machine.layout)
-    mark = fingerprint(own, shown, local)
+    mark = fingerprint(own, shown, local, every)
     why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
     if why is None:
         return
@@ -242,8 +244,8 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     result: Published = "pushed"
     reason = None
     try:
-        _push(machine, config, branch, status_file(own, shown, local), when=int(now.timestamp()),
-              report=report)
+        _push(machine, config, branch, status_file(own, shown, local, every),
+              when=int(now.timestamp()), report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:
         result, reason = "refused", exc.message
