@@ -421,9 +421,12 @@ def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.operate import roll_back
 
-    def confirm(entry: HistoryEntry) -> bool:
-        print(f"Roll back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}, "
-              f"applied {entry.time})?")
+    def confirm(entries: list[HistoryEntry]) -> bool:
+        said = ", ".join(f"{e.app} ({e.generation}, commit {e.commit[:12]}" +
+                         (f", applied {e.time})" if len(entries) == 1 else ")")
+                         for e in entries)
+        print(f"Roll back to {said}" + ("?" if len(entries) == 1 else
+                                        f", applied {entries[0].time}?"))
         return _ask(args, "Only 'yes' is accepted: ", what="rollback",
                     verb="roll back")
 
@@ -486,7 +489,10 @@ def cmd_history(args: argparse.Namespace, layout: Layout) -> int:
     if not made:
         print("No history yet: no apply has made an app current.")
         return EXIT_OK
-    for m in made:
+    sets = len({m.set for m in made}) < len(made)  # several apps: one apply, one set
+    for before, m in zip([None, *made], made):
+        if sets and before is not None and before.set != m.set:
+            print()  # the sets of apps, one block each
         h = m.entry
         params = " ".join(f"{k}={v}" for k, v in sorted(h.params.items())) or "-"
         print(f"{'*' if m.current else ' '} {h.time}  {h.app:<20} {h.generation}  "

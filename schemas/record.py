@@ -29,7 +29,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    model_serializer,
+    model_validator,
+)
 
 from schemas.generation import GenerationFields
 
@@ -154,20 +161,44 @@ class HistoryEntry(BaseModel):
     user: str | None = None
     time: str
     result: ApplyResult
+    resources: list[str] | None = Field(
+        default=None, description="what the app claimed (None: not known, taken as the "
+        "panda); written only when known")
+
+    @model_serializer(mode="wrap")
+    def _claims_written(self, handler: SerializerFunctionWrapHandler) -> Any:
+        data = handler(self)
+        if isinstance(data, dict) and data.get("resources", ()) is None:
+            del data["resources"]
+        return data
 
     @classmethod
     def of(cls, app: AppRecord, *, time: str, result: ApplyResult) -> HistoryEntry:
         return cls(generation=app.generation, app=app.name, repository=app.repository,
                    commit=app.commit, path=app.path, tree=app.tree, params=dict(app.params),
                    command=app.command, launch=app.launch, service=app.service,
-                   user=app.user, time=time, result=result)
+                   user=app.user, time=time, result=result, resources=app.resources)
 
     def installed(self) -> AppRecord:
         """This generation as the installed app it was (what a rollback returns to)."""
         return AppRecord(name=self.app, repository=self.repository, commit=self.commit,
                          tree=self.tree, path=self.path, params=dict(self.params),
                          generation=self.generation, command=self.command,
-                         launch=self.launch, service=self.service, user=self.user)
+                         launch=self.launch, service=self.service, user=self.user,
+                         resources=self.resources)
+
+
+def history_sets(history: list[HistoryEntry]) -> list[list[HistoryEntry]]:
+    """The history as the sets of apps each apply made current (or rolled back): the
+    entries one apply wrote share its time and result. The one-app world's are sets of
+    one."""
+    sets: list[list[HistoryEntry]] = []
+    for entry in history:
+        if sets and (sets[-1][0].time, sets[-1][0].result) == (entry.time, entry.result):
+            sets[-1].append(entry)
+        else:
+            sets.append([entry])
+    return sets
 
 
 class Hold(BaseModel):
@@ -180,6 +211,13 @@ class Hold(BaseModel):
     target: HistoryEntry | None = Field(
         default=None, description="what the rollback returns to: a rollback cut off by a "
         "crash is finished by the next plan and apply")
+    targets: list[HistoryEntry] = Field(
+        default_factory=list, description="several apps: the set the rollback returns to "
+        "(`target` is the one-app world's)")
+
+    def returns_to(self) -> list[HistoryEntry]:
+        """The set the rollback returns to."""
+        return list(self.targets) or ([self.target] if self.target is not None else [])
 
 
 class Rollback(BaseModel):

@@ -9,17 +9,20 @@ from pathlib import Path
 
 from reconciler.execution.context import Context
 from reconciler.planning.model import GenerationKey
+from schemas.record import history_sets
 
 
 def prune(ctx: Context, *, keep: int = 3) -> None:
     """After a successful apply, generations still installed are kept (the app's and any
     stray's: their scripts are what stops them), and the last `keep` good ones of the
-    history (what `lpam rollback` returns to); and only the exit codes still awaited."""
+    history (what `lpam rollback` returns to: a set of apps, one in the one-app world);
+    and only the exit codes still awaited."""
     record = ctx.record
     kept = {GenerationKey.of(s.name, s.generation) for s in record.strays}
-    good = [GenerationKey.of(h.app, h.generation) for h in record.history
-            if h.result == "applied"]
-    kept.update(list(dict.fromkeys(reversed(good)))[:keep])
+    good = [frozenset(GenerationKey.of(h.app, h.generation) for h in entries)
+            for entries in history_sets(record.history) if entries[0].result == "applied"]
+    for made in list(dict.fromkeys(reversed(good)))[:keep]:  # the last `keep` good sets
+        kept.update(made)
     kept.update(GenerationKey.of(a.name, a.generation) for a in record.apps)
     folders = ctx.app_folders()
     folders.prune(kept)

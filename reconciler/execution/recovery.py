@@ -40,6 +40,7 @@ from schemas.record import (
     LastApply,
     Rollback,
     StateRecord,
+    history_sets,
 )
 
 Progress = Callable[[str], None]
@@ -275,9 +276,12 @@ def finish_pending(ctx: Context, rollback: Rollback, previous: list[AppRecord]) 
 def hold_after(record: StateRecord, result: ApplyResult) -> Hold | None:
     """An apply that installs something other than what a rollback returned to ends the
     hold; the apply that finished a cut-off rollback keeps it."""
-    hold, app = record.hold, record.app
+    hold = record.hold
     if hold is None or result != "applied":
         return hold
+    if hold.targets:
+        return hold if record.apps and same_set(hold.targets, record.apps) else None
+    app = record.app
     return hold if app is not None and app.generation == hold.generation else None
 
 
@@ -288,20 +292,12 @@ def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
     applied only once it proved good. The cutover ends with the apply, unless it failed
     mid-way: then the next run still needs it."""
     when = ctx.clock().isoformat(timespec="seconds")
-    history = list(ctx.record.history)
-    several = len(ctx.record.apps) > 1 or len(failed) > 1
-    outcomes = [*((a, "rolled back") for a in failed),
-                *((a, "applied") for a in ctx.record.apps)]
-    for app, outcome in outcomes:
-        if outcome == "applied" and (result != "applied" or not app.good):
-            continue
-        last = next((h for h in reversed(history) if h.result == "applied"
-                     and (h.app == app.name or not several)), None)
-        if outcome == "applied" and last is not None and \
-                (last.generation, last.params) == (app.generation, app.params):
-            continue
-        history.append(HistoryEntry.of(
-            app, time=when, result="rolled back" if outcome == "rolled back" else "applied"))
+    history = [*ctx.record.history,
+               *(HistoryEntry.of(app, time=when, result="rolled back") for app in failed)]
+    made = [app for app in ctx.record.apps if app.good]
+    last = next((s for s in reversed(history_sets(history)) if s[0].result == "applied"), [])
+    if result == "applied" and made and not same_set(last, made):
+        history += [HistoryEntry.of(app, time=when, result="applied") for app in made]
     repositories = ctx.record.repositories
     if result == "applied":  # what runs now is what these checkouts hold
         repositories = [r.model_copy(update={"applied": r.commit}) for r in repositories]
@@ -309,10 +305,24 @@ def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
         "last_apply": LastApply(time=when, result=result, reason=reason,
                                 command=None if result == "applied" else ctx.command),
         "repositories": repositories,
-        "history": history[-20:],
+        "history": [e for s in history_sets(history)[-KEEP_SETS:] for e in s],
         "hold": hold_after(ctx.record, result),
         "cutover": ctx.record.cutover if result == "failed" else None,
     }))
+
+
+KEEP_SETS = 20  # the sets of apps `lpam history` remembers
+
+
+def same_set(entries: Sequence[HistoryEntry], apps: Sequence[AppRecord]) -> bool:
+    """Whether a set of the history is what `apps` are: each app's generation and
+    parameters (in the one-app world, whatever its name: a generation names its app)."""
+    def key(name: str, generation: str, params: dict[str, str]) -> tuple[str, ...]:
+        return (name if len(apps) > 1 or len(entries) > 1 else "", generation,
+                *sorted(f"{k}={v}" for k, v in params.items()))
+
+    return {key(e.app, e.generation, e.params) for e in entries} == \
+        {key(a.name, a.generation, a.params) for a in apps}
 
 
 def where(phase: Phase, ctx: Context) -> str:

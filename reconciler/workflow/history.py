@@ -1,5 +1,5 @@
-"""The history use case (`lpam history`): the generations made current, newest last, and
-which of them is the one installed now."""
+"""The history use case (`lpam history`): the sets of apps made current, newest last, and
+which of them is the one installed now. In the one-app world each set is one generation."""
 
 from __future__ import annotations
 
@@ -11,18 +11,30 @@ from schemas.record import HistoryEntry
 
 @dataclass(frozen=True)
 class Made:
-    """One generation made current; `current`: it is the installed app, as applied."""
+    """One generation made current (or rolled back); `current`: it is installed now, as
+    applied; `set`: the number of the apply's set it belongs to (entries of one apply
+    share it)."""
 
     entry: HistoryEntry
     current: bool
+    set: int = 0
 
 
 def history(layout: Layout) -> list[Made]:
     """Every generation the record remembers making current, oldest first."""
+    from reconciler.execution.recovery import same_set
     from reconciler.state import read_record
+    from schemas.record import history_sets
 
     record = read_record(layout)
     app = record.app
-    return [Made(h, app is not None and h.result == "applied"
-                 and (h.generation, h.params) == (app.generation, app.params))
-            for h in record.history]
+    made = []
+    for number, entries in enumerate(history_sets(record.history)):
+        for h in entries:
+            if len(record.apps) > 1 or len(entries) > 1:
+                current = h.result == "applied" and same_set(entries, record.apps)
+            else:
+                current = app is not None and h.result == "applied" and \
+                    (h.generation, h.params) == (app.generation, app.params)
+            made.append(Made(h, current, number))
+    return made

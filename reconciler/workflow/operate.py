@@ -25,7 +25,7 @@ from reconciler.execution.context import Context
 from reconciler.execution.executor import execute
 from reconciler.execution.lock import apply_lock
 from reconciler.layout import KEEP_GENERATIONS
-from reconciler.planning.lifecycle import app_steps, operator_steps, target_of
+from reconciler.planning.lifecycle import operator_steps
 from reconciler.planning.model import GenerationKey
 from reconciler.planning.plan import fingerprint
 from reconciler.workflow.applying import ApplyOptions
@@ -69,9 +69,10 @@ def resumed_by(command: str) -> str:
 
 
 def roll_back(machine: Machine, *, file: Path | None, force: bool, options: ApplyOptions,
-              confirm: Callable[[HistoryEntry], bool], report: Report) -> str | None:
-    """`lpam rollback`: under the apply lock, the previous good generation is found and
-    `confirm`ed, then made current (see `rollback`); None when it was declined. It holds
+              confirm: Callable[[list[HistoryEntry]], bool], report: Report) -> str | None:
+    """`lpam rollback`: under the apply lock, the previous good set of apps (one app in
+    the one-app world) is found and `confirm`ed, then made current (see `rollback`); None
+    when it was declined. It holds
     against `file` (else the default file) when no apply recorded what it applied."""
     from reconciler.documents import load_desired
 
@@ -83,10 +84,10 @@ def roll_back(machine: Machine, *, file: Path | None, force: bool, options: Appl
         ctx, _ = machine.context(machine.store(), lock, command=resumed_by("rollback"),
                                  script_timeout=options.script_timeout, report=report,
                                  gate=gate, gate_wait=options.wait)
-        entry = previous_good(ctx)
-        if not confirm(entry):
+        entries = previous_good(ctx)
+        if not confirm(entries):
             return None
-        return rollback(ctx, entry, desired, progress=lambda text: report(Progress(text)))
+        return rollback(ctx, entries, desired, progress=lambda text: report(Progress(text)))
 
 
 def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine,
@@ -172,41 +173,56 @@ def gates_passed(ctx: Context, progress: ProgressLine) -> Iterator[None]:
         held.release()
 
 
-def previous_good(ctx: Context) -> HistoryEntry:
-    """The last good generation other than the installed one, still on disk."""
-    app = ctx.record.app
+def previous_good(ctx: Context) -> list[HistoryEntry]:
+    """The last good set of apps (the history's sets: schemas/record.py `history_sets`)
+    other than the one installed, every generation of it still on disk."""
+    from reconciler.execution.recovery import same_set
+    from schemas.record import history_sets
+
     present = generations.present(ctx.layout)
-    for entry in reversed(ctx.record.history):
-        if entry.result != "applied":
+    for entries in reversed(history_sets(ctx.record.history)):
+        if entries[0].result != "applied" or same_set(entries, ctx.record.apps):
             continue
-        if app is not None and (entry.generation, entry.params) == (app.generation, app.params):
-            continue
-        if GenerationKey.of(entry.app, entry.generation) in present:
-            return entry
+        if all(GenerationKey.of(e.app, e.generation) in present for e in entries):
+            return entries
     raise LpamError("no previous good generation is kept on disk to roll back to",
                     hint="see `lpam history`; lpam keeps the last good generations on disk "
                     f"({KEEP_GENERATIONS}, or as many as `--keep-generations` said)")
 
 
-def rollback(ctx: Context, entry: HistoryEntry, desired: DesiredState | None, *,
+def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | None, *,
              progress: ProgressLine) -> str:
-    """Make `entry` current again through journalled steps, and hold it there. The hold is
-    written first: if lpam dies mid-rollback, the next plan finishes it (workflow.planning).
-    It holds against the desired state last applied, whichever file or revision that came
-    from (`desired`, the default file's, counts only when no apply recorded one)."""
+    """Make `entries` (a set of apps, one in the one-app world) current again through
+    journalled steps, and hold them there. The hold is written first: if lpam dies
+    mid-rollback, the next plan finishes it (workflow.planning). It holds against the
+    desired state last applied, whichever file or revision that came from (`desired`, the
+    default file's, counts only when no apply recorded one)."""
+    from reconciler.execution.recovery import steps_back
+
     applied = ctx.record.desired
+    one = entries[0] if len(entries) == 1 else None
     hold = Hold(desired=applied.fingerprint if applied is not None
-                else desired_fingerprint(desired), generation=entry.generation, target=entry)
+                else desired_fingerprint(desired), generation=set_name(entries),
+                target=one, targets=[] if one is not None else entries)
     with gates_passed(ctx, progress):
         ctx.save(ctx.record.model_copy(update={"hold": hold}))
-        steps = app_steps(ctx.record, target_of(entry.installed()),
-                          generations.present(ctx.layout), verify=False)
+        steps = steps_back(ctx.record, [e.installed() for e in entries],
+                           generations.present(ctx.layout))
         if steps:
-            execute(_plan(ctx, steps, f"roll back to {entry.app}@{entry.generation}",
-                          ctx.clock()), ctx, progress=progress, record_result=False)
-    return (f"Rolled back to {entry.app} ({entry.generation}, commit {entry.commit[:12]}). "
-            "It holds: plan and apply propose nothing until the desired state changes "
-            "(or `lpam apply --release`).")
+            named = ", ".join(f"{e.app}@{e.generation}" for e in entries)
+            execute(_plan(ctx, steps, f"roll back to {named}", ctx.clock()),
+                    ctx, progress=progress, record_result=False)
+    said = ", ".join(f"{e.app} ({e.generation}, commit {e.commit[:12]})" for e in entries)
+    return (f"Rolled back to {said}. "
+            f"{'It holds' if one is not None else 'They hold'}: plan and apply propose "
+            "nothing until the desired state changes (or `lpam apply --release`).")
+
+
+def set_name(entries: list[HistoryEntry]) -> str:
+    """A set of generations as a hold and a plan name it (`app@generation` for several)."""
+    if len(entries) == 1:
+        return entries[0].generation
+    return ", ".join(f"{e.app}@{e.generation}" for e in entries)
 
 
 def desired_fingerprint(desired: DesiredState | None) -> str:

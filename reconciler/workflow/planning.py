@@ -166,15 +166,15 @@ def _held_plan(machine: Machine, store: GitStore, record: StateRecord, hold: str
     from reconciler.planning.model import Observed, RepoTarget, Targets
     from reconciler.planning.plan import make_plan
 
-    target = record.hold.target if record.hold is not None else None
-    if target is not None:
+    entries = record.hold.returns_to() if record.hold is not None else []
+    if entries:
         repos = tuple(RepoTarget(r.key, r.url, r.ref, r.commit) for r in record.repositories)
-        targets = Targets(repos, target_of(target.installed()))
+        targets = Targets(repos, apps=tuple(target_of(e.installed()) for e in entries))
         made = make_plan(targets, observe(machine.layout, store, targets, machine.services),
                          now=machine.clock(), lpam_version=__version__)
         if made.steps:
-            report(Note(f"the rollback to {target.app} ({target.generation}) was cut off; "
-                        "the steps below finish it"))
+            back = ", ".join(f"{e.app} ({e.generation})" for e in entries)
+            report(Note(f"the rollback to {back} was cut off; the steps below finish it"))
             return made
     return make_plan(Targets((), None), Observed(record=record, repositories={}),
                      now=machine.clock(), lpam_version=__version__, hold=hold)

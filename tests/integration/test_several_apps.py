@@ -92,3 +92,27 @@ def test_a_failed_health_check_of_one_new_app_rolls_the_whole_apply_back(
     assert record["last_apply"]["result"] == "rolled back"
     rolled = {h["app"] for h in record["history"] if h["result"] == "rolled back"}
     assert rolled == {"ctl-b", "bad-tracker"}
+
+
+def test_rollback_brings_the_previous_set_back_and_history_shows_sets(lpam: Lpam,
+                                                                      car_url: str) -> None:
+    applied(lpam, several(car_url, "ctl-a", "recorder", "tracker"))
+    first = running(lpam.root)
+    applied(lpam, several(car_url, "ctl-b", "recorder"))
+    assert sorted(running(lpam.root)) == ["ctl-b", "recorder"]
+
+    shown = lpam("history")
+    assert shown.returncode == 0, shown.stderr
+    blocks = [b.splitlines() for b in shown.stdout.strip().split("\n\n")]
+    assert [sorted(line.lstrip("* ").split()[1] for line in b) for b in blocks] == [
+        ["ctl-a", "recorder", "tracker"], ["ctl-b", "recorder"]]
+    assert all(line.startswith("*") for line in blocks[1])  # the set installed now
+
+    back = lpam("rollback", "--yes")
+    assert back.returncode == 0, back.stderr
+    assert "Rolled back to" in back.stdout and "They hold" in back.stdout
+    now = running(lpam.root)
+    assert sorted(now) == ["ctl-a", "recorder", "tracker"]
+    assert now["recorder"] == first["recorder"]  # it was in both sets: untouched
+    assert collisions(lpam.root) == []
+    assert lpam("plan", "--detailed-exitcode").returncode == 0  # held: nothing proposed
