@@ -48,6 +48,16 @@ class LpamError(Exception):
         return text
 
 
+def place(path: Path, line: int | None, column: int | None) -> str:
+    """`file:line:col` as editors and compilers write it (what they know of it)."""
+    where = str(path)
+    if line is not None:
+        where += f":{line}"
+        if column is not None:
+            where += f":{column}"
+    return where
+
+
 class ConfigError(LpamError):
     """A document (desired state, catalog, plan, legacy file) is at fault.
 
@@ -70,14 +80,7 @@ class ConfigError(LpamError):
 
     @property
     def where(self) -> str:
-        if self.path is None:
-            return "<input>"
-        where = str(self.path)
-        if self.line is not None:
-            where += f":{self.line}"
-            if self.column is not None:
-                where += f":{self.column}"
-        return where
+        return "<input>" if self.path is None else place(self.path, self.line, self.column)
 
     def render(self) -> str:
         text = f"error: {self.where}: {self.message}"

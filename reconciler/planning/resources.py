@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-from reconciler.errors import ConfigError
+from reconciler.errors import ConfigError, place
 from schemas.catalog import SERVICE_PREFIX
 
 
@@ -33,12 +33,7 @@ class Where(NamedTuple):
     column: int | None = None
 
     def __str__(self) -> str:
-        text = str(self.path)
-        if self.line is not None:
-            text += f":{self.line}"
-            if self.column is not None:
-                text += f":{self.column}"
-        return text
+        return place(self.path, self.line, self.column)
 
 
 @dataclass(frozen=True)
