@@ -123,7 +123,9 @@ def failure(given: m.Request, why: str) -> str:
 
 
 def summary(machine: Machine) -> dict[str, str]:
-    """lpam's extra read: the app as it stands, what an apply would do now (planned with
+    """lpam's extra read: the app as it stands (`app` … `running`: the first installed;
+    `apps`: every installed app and its status, when several run), what an apply would
+    do now (planned with
     no network, from what the last fetch brought), the revisions the agent applied and
     wants, a local override, and the update gates now (of the desired state in force:
     workflow/gates.py). A part that cannot be known says why; the read never fails."""
@@ -136,6 +138,8 @@ def summary(machine: Machine) -> dict[str, str]:
         "generation": "" if app is None else str(app["generation"]),
         "status": "" if app is None else str(app["status"]),
         "running": "yes" if app is not None and app["running"] else "no",
+        "apps": ", ".join(f"{a['name']} {a['status']}" for a in shown["installed"])
+        or "None",
         "applied_revision": str(agent.get("applied_revision") or ""),
         "desired_revision": str(agent.get("desired_revision") or ""),
         "override": "none" if local is None else

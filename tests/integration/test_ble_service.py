@@ -261,6 +261,7 @@ def test_two_phones_at_once_keep_their_own_messages(car: FieldCar, bus: str) -> 
             await double.write(INPUT_UUID, b"\x00", PHONE_A)
             kind, summary = await a.next_message(0, 30)
             assert kind == "app_summary" and summary["app"] == "ticker"
+            assert summary["apps"] == "ticker running"  # every installed app
             assert await a.next_status(1, 60) == "App command success!"
 
     with ble(car, bus):
