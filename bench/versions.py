@@ -9,7 +9,8 @@ What a refactoring costs at run time, measured rather than assumed: a no-op `lpa
 lock). Each checkout runs its own code (`python -m reconciler` from its folder) with the
 same libraries; each writes and reads its own plan format. One fixture serves both (the
 repositories of bench/repos.py pinned to commits on a loopback git daemon, applied once by
-this checkout). The checkouts take turns within each round, every run a fresh process, and
+the other, earlier checkout: a newer lpam reads its record through the migration). The
+checkouts take turns within each round, every run a fresh process, and
 each figure is a ratio to this checkout's in the same rounds: these machines are noisy.
 """
 
@@ -72,7 +73,10 @@ def main(argv: list[str] | None = None) -> int:
             desired = tmp / "desired.yaml"
             desired.write_text(desired_state(repos, pinned=True))
             root, empty = tmp / "root", tmp / "empty"
-            run_in(TOP, ["apply", "-f", str(desired), "--root", str(root), "--yes"], env)
+            # applied by the earlier checkout: a newer lpam reads an older state record
+            # (through its migration), never the reverse
+            run_in(folders[1], ["apply", "-f", str(desired), "--root", str(root), "--yes"],
+                   env)
             times = _rounds(folders, desired, root, empty, tmp, args.reps, env)
     _report(folders, times, args)
     return 0
