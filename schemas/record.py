@@ -164,20 +164,27 @@ class HistoryEntry(BaseModel):
     resources: list[str] | None = Field(
         default=None, description="what the app claimed (None: not known, taken as the "
         "panda); written only when known")
+    apply: int | None = Field(
+        default=None, description="which apply wrote it (the record's serial then): the "
+        "entries of one apply are one set; written only when known (an entry from before "
+        "several apps is a set of its own)")
 
     @model_serializer(mode="wrap")
-    def _claims_written(self, handler: SerializerFunctionWrapHandler) -> Any:
+    def _known_written(self, handler: SerializerFunctionWrapHandler) -> Any:
         data = handler(self)
-        if isinstance(data, dict) and data.get("resources", ()) is None:
-            del data["resources"]
+        for key in ("resources", "apply"):
+            if isinstance(data, dict) and data.get(key, ()) is None:
+                del data[key]
         return data
 
     @classmethod
-    def of(cls, app: AppRecord, *, time: str, result: ApplyResult) -> HistoryEntry:
+    def of(cls, app: AppRecord, *, time: str, result: ApplyResult,
+           apply: int | None = None) -> HistoryEntry:
         return cls(generation=app.generation, app=app.name, repository=app.repository,
                    commit=app.commit, path=app.path, tree=app.tree, params=dict(app.params),
                    command=app.command, launch=app.launch, service=app.service,
-                   user=app.user, time=time, result=result, resources=app.resources)
+                   user=app.user, time=time, result=result, resources=app.resources,
+                   apply=apply)
 
     def installed(self) -> AppRecord:
         """This generation as the installed app it was (what a rollback returns to)."""
@@ -190,11 +197,12 @@ class HistoryEntry(BaseModel):
 
 def history_sets(history: list[HistoryEntry]) -> list[list[HistoryEntry]]:
     """The history as the sets of apps each apply made current (or rolled back): the
-    entries one apply wrote share its time and result. The one-app world's are sets of
-    one."""
+    entries one apply wrote share its number (`apply`) and result. An entry written before
+    several apps is a set of its own."""
     sets: list[list[HistoryEntry]] = []
     for entry in history:
-        if sets and (sets[-1][0].time, sets[-1][0].result) == (entry.time, entry.result):
+        if sets and entry.apply is not None and \
+                (sets[-1][0].apply, sets[-1][0].result) == (entry.apply, entry.result):
             sets[-1].append(entry)
         else:
             sets.append([entry])

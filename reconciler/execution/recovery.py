@@ -288,16 +288,19 @@ def hold_after(record: StateRecord, result: ApplyResult) -> Hold | None:
 def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
            failed: Sequence[AppRecord] = ()) -> None:
     """Record how the apply ended, and the generations it made current (history: the
-    entries of one apply share its time, a set). A generation enters the history as
+    entries of one apply carry its number, a set). A generation enters the history as
     applied only once it proved good. The cutover ends with the apply, unless it failed
     mid-way: then the next run still needs it."""
     when = ctx.clock().isoformat(timespec="seconds")
+    apply = ctx.record.serial  # one number per apply: its entries are one set
     history = [*ctx.record.history,
-               *(HistoryEntry.of(app, time=when, result="rolled back") for app in failed)]
+               *(HistoryEntry.of(app, time=when, result="rolled back", apply=apply)
+                 for app in failed)]
     made = [app for app in ctx.record.apps if app.good]
     last = next((s for s in reversed(history_sets(history)) if s[0].result == "applied"), [])
     if result == "applied" and made and not same_set(last, made):
-        history += [HistoryEntry.of(app, time=when, result="applied") for app in made]
+        history += [HistoryEntry.of(app, time=when, result="applied", apply=apply)
+                    for app in made]
     repositories = ctx.record.repositories
     if result == "applied":  # what runs now is what these checkouts hold
         repositories = [r.model_copy(update={"applied": r.commit}) for r in repositories]

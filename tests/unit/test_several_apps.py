@@ -38,7 +38,7 @@ from reconciler.planning.model import AppTarget, HealthTarget, RepoTarget, Targe
 from reconciler.planning.plan import make_plan
 from reconciler.state import read_record, write_record
 from schemas.plan import Plan
-from schemas.record import AppRecord, RepositoryRecord, StateRecord
+from schemas.record import AppRecord, RepositoryRecord, StateRecord, history_sets
 from tests.unit.test_convergence import C1, C2, KEY, NOW, SCRIPTS, STATUSES, URL
 
 CLAIMS = {"c1": {"panda"}, "c2": {"panda"}, "g1": {"gps"}, "g2": {"gps"}, "r": set()}
@@ -270,3 +270,15 @@ def test_apps_that_claim_nothing_change_while_the_car_moves_only_if_the_gates_fr
     with pytest.raises(Deferred):
         car.apply([("c2", C1, ()), ("r", C2, ())], MemoryGate(moving, unclaimed_free=True))
     assert ("c1", C1, (), "running") in car.apps()
+
+
+def test_two_applies_in_one_second_are_two_sets_of_the_history(tmp_path: Path) -> None:
+    """The sets of the history are told apart by the apply that wrote them, not by its
+    time: every apply here runs at the same instant (found by the CLI tests, where two
+    applies within one second made one set and `lpam rollback` a plan of two copies)."""
+    car = Car(tmp_path, [], [])
+    assert car.apply([("c1", C1, ()), ("r", C1, ())])
+    assert car.apply([("c2", C1, ()), ("r", C1, ())])
+    assert car.apply([("c2", C1, (("K", "1"),)), ("r", C1, ())])
+    sets = history_sets(read_record(car.layout).history)
+    assert [sorted(e.app for e in s) for s in sets] == [["c1", "r"], ["c2", "r"], ["c2", "r"]]
