@@ -17,9 +17,9 @@ gates: {stationary_seconds: 60, windows: ["22:00-06:00"]}  # optional: no gates 
 
 Version 1 said `app: X` (one app, or `app: null`); it is still read, through
 migrations/desired_state_v1_to_v2.py, and lpam's own edits keep such a file version 1.
-Version 2 lists apps because several apps may one day run side by side (issue 22); until
-the planner for several apps exists, a desired state of more than one app is a valid
-document that planning refuses. `app` (the property) is the single-app engine's view.
+Version 2 lists apps, which run side by side (planning/ensemble.py); two that claim one
+exclusive resource are refused when planned (planning/resources.py). `app` (the
+property) is the first app: the one-app world's view.
 """
 
 from __future__ import annotations
