@@ -59,17 +59,9 @@ def app_table(machine: Machine) -> list[AppRow]:
     record = read_record(machine.layout)
     repositories = [r for r in (_offline(machine, store, desired, spec, found.path)
                                 for spec in desired.repositories) if r is not None]
-    offered = record.model_copy(update={"repositories": repositories, "apps": []})
-    rows = status.rows(machine.layout, store=store, record=offered)
-    for app in record.apps:  # each app's row made as status makes the one app's
-        live = machine.services.state(app.service) if app.service else None
-        alone = offered.model_copy(update={
-            "apps": [app], "repositories": [r for r in repositories if r.key == app.repository]})
-        mine = next(r for r in status.rows(machine.layout, store=store, record=alone,
-                                           live=live) if r.installed)
-        at = next((i for i, r in enumerate(rows) if not r.installed and
-                   (r.repository, r.app) == (mine.repository, mine.app)), len(rows))
-        rows[at:at + 1] = [mine]
+    lives = {a.name: machine.services.state(a.service) for a in record.apps if a.service}
+    rows = status.rows(machine.layout, store=store, lives=lives,
+                       record=record.model_copy(update={"repositories": repositories}))
     return [AppRow(repository=r.repository, branch=r.ref, app=r.app,
                    service="" if r.service == "-" else r.service, enabled=r.installed,
                    running=r.running, description=r.description)
