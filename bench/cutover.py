@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from reconciler.adapters.services.supervisor import shutdown
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 
 TICKER = """\

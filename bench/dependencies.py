@@ -51,7 +51,7 @@ from pathlib import Path
 
 from bench.cutover import TICKER
 from reconciler.adapters.services.supervisor import shutdown
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
 from tests.catkin import write_package
 from tests.contract.test_packages import recording_apt_get
 from tests.gitserver import GitDaemon, RepoBuilder

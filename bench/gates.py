@@ -32,7 +32,7 @@ from functools import partial
 from pathlib import Path
 
 from reconciler.adapters.can.sources import FrameSource, open_source
-from reconciler.vehicle.signal import RAV4_SPEED, decode
+from reconciler.core.vehicle.signal import RAV4_SPEED, decode
 from tests.canlog import CsvWriter, between, drive, write_candump, write_csv
 from tests.gitserver import GitDaemon, RepoBuilder, git_env
 from tests.integration.apps import apps_repo, desired

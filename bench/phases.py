@@ -19,19 +19,20 @@ import time
 from pathlib import Path
 
 IMPORTS = {  # phase name: modules, in the order `lpam plan` first imports them
-    "import cli (argparse, layout, errors)": ["reconciler.cli"],
-    "import render (schemas.plan: pydantic)": ["reconciler.planning.render"],
-    "import documents (ruamel.yaml, schemas)": ["reconciler.documents"],
+    "import cli (argparse, layout, errors)": ["reconciler.frontends.cli"],
+    "import render (schemas.plan: pydantic)": ["reconciler.core.planning.render"],
+    "import documents (ruamel.yaml, schemas)": ["reconciler.core.documents"],
     "import adapters.git (dulwich)": ["reconciler.adapters.git"],
-    "import observe (state record, journal)": ["reconciler.observe.machine",
-                                               "reconciler.observe.targets"],
-    "import planning.plan (networkx)": ["reconciler.planning.plan"],
+    "import observe (state record, journal)": ["reconciler.engine.observe.machine",
+                                               "reconciler.engine.observe.targets"],
+    "import planning.plan (networkx)": ["reconciler.core.planning.plan"],
     "import workflow (the use cases)": ["reconciler.workflow.planning"],
 }
 
 
 def phases(desired_path: Path, root: Path) -> dict[str, float]:
-    gc.disable()  # as `lpam` itself runs (reconciler.cli.entry): its imports then cost less
+    # as `lpam` itself runs (reconciler.frontends.cli.entry): its imports then cost less
+    gc.disable()
     times: dict[str, float] = {}
     clock = time.perf_counter()
 
@@ -46,10 +47,10 @@ def phases(desired_path: Path, root: Path) -> dict[str, float]:
             importlib.import_module(module)
         lap(name)
 
-    from reconciler.documents import load_desired
-    from reconciler.layout import Layout
-    from reconciler.observe.targets import Fetch
-    from reconciler.planning.render import render
+    from reconciler.base.layout import Layout
+    from reconciler.core.documents import load_desired
+    from reconciler.core.planning.render import render
+    from reconciler.engine.observe.targets import Fetch
     from reconciler.workflow.events import Event, Phase
     from reconciler.workflow.machine import Machine
     from reconciler.workflow.planning import prepare

@@ -36,7 +36,7 @@ TOP = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 LPAM = str(BIN / "lpam")
 LIBRARIES = ("import gc; gc.disable(); from pydantic import BaseModel; import ruamel.yaml, "
-             "dulwich.repo, argparse")  # gc off as in lpam (reconciler.cli.entry)
+             "dulwich.repo, argparse")  # gc off as in lpam (reconciler.frontends.cli.entry)
 VCS = str(BIN / "vcs")
 TIMEOUT = 600  # seconds; no single command of a benchmark should come near it
 

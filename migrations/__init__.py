@@ -33,7 +33,7 @@ from migrations import (
     state_record_v4_to_v5,
 )
 from migrations.step import MigrationError, Step
-from reconciler.errors import ConfigError, VersionError
+from reconciler.base.errors import ConfigError, VersionError
 from schemas.kinds import DocumentKind
 from schemas.kinds import DocumentKind as K
 

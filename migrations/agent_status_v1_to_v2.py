@@ -3,7 +3,7 @@
 Why: a car published its status to `status/<vehicle>` after every pass, two connections
 and one commit each time; version 2 records its last publication (`publication`: when,
 what counted in it, whether the fleet repository took it) so that a pass publishes only a
-changed status or a heartbeat (reconciler/publication.py), and the desired-state file it
+changed status or a heartbeat (reconciler/core/publication.py), and the desired-state file it
 follows (`follows`) so that `lpam fleet status` can show it. Version 1 also gained the
 pass result `deferred` (a closed update gate) without a version step; version 2 is where
 that result is named, and a version-1 file holding it (written by the lpam that added it)

@@ -5,7 +5,7 @@ Why: the metadata file (`generations/<app>/<id>.json`) was hand-written JSON wit
 version, so a later lpam could not tell what an older one wrote. Version 1 is the same
 content with `version: 1`, its app named `name` (schemas/generation.py GenerationMeta
 shares its fields with a plan's step and the state record's app). A file with no
-`version` is version 0 (reconciler/generations.py says so before upgrading); it is
+`version` is version 0 (reconciler/engine/records/generations.py says so before upgrading); it is
 carried over as it is, every other key kept.
 """
 

@@ -3,7 +3,7 @@
 Why: version 3 could not tell an app that passed its health check from one whose check a
 kill cut off, nor remember which app a failed apply must return to once lpam had died:
 the next run trusted the unproven app and forgot the failure. Version 4 adds `app.good`
-and `cutover` (reconciler/execution/recovery.py), and what status must not guess: the
+and `cutover` (reconciler/engine/execution/recovery.py), and what status must not guess: the
 desired state of the last apply (`desired`, what holds hold against) and each
 repository's commit as of the last successful apply (`applied`). A version-3 app was
 installed by the old rules, which took it for good, so it stays good; its checkouts are

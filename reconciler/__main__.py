@@ -11,7 +11,7 @@ import sys
 
 def main() -> int:
     try:
-        from reconciler.cli import entry
+        from reconciler.frontends.cli import entry
     except KeyboardInterrupt:
         print("interrupted: lpam was still starting; nothing was changed", file=sys.stderr)
         return 130

@@ -1,6 +1,6 @@
 """The agent's configuration (`<root>/etc/lpam/agent.yaml`) and what it records of its
 passes (`<root>/var/lib/lpam/status.json`, also the body of the branch `status/<vehicle>`
-it publishes, see reconciler/publication.py).
+it publishes, see reconciler/core/publication.py).
 
 ```yaml
 version: 1
@@ -144,7 +144,7 @@ Published = Literal["pushed", "refused", "failed"]
 
 class Publication(BaseModel):
     """The last attempt to publish this status to `status/<vehicle>`: when, the fingerprint
-    of what counted in it (reconciler/publication.py), and whether the fleet repository
+    of what counted in it (reconciler/core/publication.py), and whether the fleet repository
     took it (`pushed`), refused pushes from this car (`refused`: read-only, no write
     access), or could not be reached (`failed`)."""
 

@@ -17,8 +17,8 @@ gates: {stationary_seconds: 60, windows: ["22:00-06:00"]}  # optional: no gates 
 
 Version 1 said `app: X` (one app, or `app: null`); it is still read, through
 migrations/desired_state_v1_to_v2.py, and lpam's own edits keep such a file version 1.
-Version 2 lists apps, which run side by side (planning/ensemble.py); two that claim one
-exclusive resource are refused when planned (planning/resources.py). `app` (the
+Version 2 lists apps, which run side by side (core/planning/ensemble.py); two that claim one
+exclusive resource are refused when planned (core/planning/resources.py). `app` (the
 property) is the first app: the one-app world's view.
 """
 

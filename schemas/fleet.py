@@ -10,7 +10,7 @@ several apps still reads them, and `app` (the first installed app) keeps its mea
 Files published before version 1 carry no `version` (version 0): the same two parts, the
 agent's status as that car's lpam wrote it (an agent status version 1 or 2) and the app;
 migrations/car_status_v0_to_v1.py brings one to version 1. Written and read in one place,
-reconciler/publication.py.
+reconciler/core/publication.py.
 """
 
 from __future__ import annotations

@@ -68,7 +68,7 @@ class GenerationFields(BaseModel):
 
 class AppGeneration(GenerationFields):
     """The app a step works on, with what it depends on. `commit`, `path` and `tree` are
-    None only in a plan made without network (never applied: planning/plan.py refuses
+    None only in a plan made without network (never applied: core/planning/plan.py refuses
     it)."""
 
     commit: str | None
@@ -91,10 +91,10 @@ class GenerationMeta(GenerationFields):
     without a state record, tells a script deleted by the app apart from one it never
     had (`scripts`; None: staged by an lpam that did not record them), and keeps the
     runtime it was staged with (its environment, its ROS build) for a rollback. Version
-    1 is the first with a version (reconciler/generations.py reads older files through
+    1 is the first with a version (engine/records/generations.py reads older files through
     migrations/generation_meta_v0_to_v1.py). Unknown keys are ignored, as they always
     were: the file is a cache of what the stage step knew. The engine holds a generation
-    as this very model (reconciler/planning/model.py `Generation` adds its folder only),
+    as this very model (reconciler/core/planning/model.py `Generation` adds its folder only),
     so what it stages is what this file says."""
 
     model_config = ConfigDict(extra="ignore", frozen=True)

@@ -134,7 +134,7 @@ class BuildStep(_Step):
 
 class _AppStep(_Step):
     """A step on one generation of the app; `good`: whether it counts as good once the
-    step ends (planning/lifecycle.py decides: it proved good before, or there is nothing
+    step ends (core/planning/lifecycle.py decides: it proved good before, or there is nothing
     to check)."""
 
     app: AppGeneration

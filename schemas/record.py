@@ -4,7 +4,7 @@ Like Terraform's state it has a *lineage* (a UUID fixed when the record is first
 and a *serial* (incremented on every write), so a saved plan can tell whether the machine
 changed since it was made. It is rewritten atomically before and after every script an
 apply runs, so after a power cut or a kill it says which scripts finished and which one
-may have been under way (the app's `status` and `run`, see reconciler/state.py).
+may have been under way (the app's `status` and `run`, see reconciler/engine/records/state.py).
 
 Version 4 adds what a fault must not erase (RAUC's rule: a slot is good only once it
 proved good): whether the installed app passed its health check (`good`), and the apply

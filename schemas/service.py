@@ -1,7 +1,7 @@
 """How an app runs as a service: the scriptless `command:` / `launch:` of a catalog entry,
 its `health:` check, and the user it runs as.
 
-A scriptless app needs no lifecycle scripts: lpam writes the unit itself (reconciler/unit.py)
+A scriptless app needs no lifecycle scripts: lpam writes the unit itself (reconciler/base/unit.py)
 from an argument list — never a shell string, so a value cannot become a command — or from a
 roslaunch file of a package in the catkin workspace. Health says when a started app counts
 as up: it stayed active for `settle_seconds` without restarting and, when given, `command`

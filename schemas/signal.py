@@ -3,7 +3,7 @@
 The RAV4's speed is `SG_ SPEED : 47|16@0+ (0.01,0) [0|250] "km/h"` in message 0xB4. This
 is the definition a desired state's `vehicle.speed` declares (schemas/vehicle.py) and that
 `check` validates with the document; decoding frames with it is the vehicle's business
-(reconciler/vehicle/signal.py), and reading one out of a DBC file an adapter's
+(reconciler/core/vehicle/signal.py), and reading one out of a DBC file an adapter's
 (reconciler/adapters/can/dbc.py). Pure: no I/O, nothing but arithmetic on the definition.
 
 DBC's bit numbering, which `SignalDef.start_bit` keeps unchanged (as cantools does):

@@ -21,8 +21,8 @@ import time
 from collections.abc import Sequence
 
 from reconciler.adapters.command import run_streamed
-from reconciler.errors import DependencyError
-from reconciler.execution.ports import Log
+from reconciler.base.errors import DependencyError
+from reconciler.engine.execution.ports import Log
 
 _NOT_FOUND = re.compile(r"Unable to locate package|has no installation candidate")
 _APT_ENV = {"DEBIAN_FRONTEND": "noninteractive", "APT_LISTCHANGES_FRONTEND": "none"}

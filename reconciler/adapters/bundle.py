@@ -17,9 +17,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from reconciler.atomic import write_atomic
-from reconciler.errors import ConfigError
-from reconciler.layout import Layout
+from reconciler.base.atomic import write_atomic
+from reconciler.base.errors import ConfigError
+from reconciler.base.layout import Layout
 
 if TYPE_CHECKING:
     from dulwich.bundle import Bundle

@@ -36,9 +36,9 @@ from pathlib import Path
 from typing import Literal
 
 from reconciler.adapters.command import run_streamed
-from reconciler.atomic import fsync_dir, write_atomic
-from reconciler.errors import DETAIL_LINES, DependencyError
-from reconciler.execution.ports import DEFAULT_PATH, SOURCE_THEN_EXEC, Log
+from reconciler.base.atomic import fsync_dir, write_atomic
+from reconciler.base.errors import DETAIL_LINES, DependencyError
+from reconciler.engine.execution.ports import DEFAULT_PATH, SOURCE_THEN_EXEC, Log
 
 MARKER = ".lpam-built"
 _KEY = re.compile(r"[0-9a-f]{8,64}")

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from reconciler.errors import ConfigError
+from reconciler.base.errors import ConfigError
 
 
 @dataclass(frozen=True)

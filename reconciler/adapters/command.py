@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from reconciler.adapters.scripts import stop_group
-from reconciler.errors import DETAIL_LINES
-from reconciler.execution.ports import Log
+from reconciler.base.errors import DETAIL_LINES
+from reconciler.engine.execution.ports import Log
 
 
 @dataclass

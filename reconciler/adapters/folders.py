@@ -1,6 +1,6 @@
-"""The app folders on the machine's disk: the AppFolders port (execution/ports.py) over
-reconciler/generations.py (the generation folders and their metadata) and
-reconciler/legacy/appdir.py (the `/etc/libpanda.d/apps` links and LPAM's manifest).
+"""The app folders on the machine's disk: the AppFolders port (engine/execution/ports.py) over
+reconciler/engine/records/generations.py (the generation folders and their metadata) and
+reconciler/engine/records/legacy/appdir.py (the `/etc/libpanda.d/apps` links and LPAM's manifest).
 
 The engine changes those folders only through this port, so that what it does to the disk
 is chosen, like every other side effect, by the workflow that builds its context.
@@ -12,11 +12,11 @@ from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
-from reconciler import generations
-from reconciler.execution.ports import Store
-from reconciler.layout import Layout
-from reconciler.legacy import appdir
-from reconciler.planning.model import Generation, GenerationKey
+from reconciler.base.layout import Layout
+from reconciler.core.planning.model import Generation, GenerationKey
+from reconciler.engine.execution.ports import Store
+from reconciler.engine.records import generations
+from reconciler.engine.records.legacy import appdir
 from schemas.record import StateRecord
 
 

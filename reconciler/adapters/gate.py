@@ -1,8 +1,8 @@
 """The update gates, observed: the vehicle's speed from its CAN source, the apps' update
-locks, the local time of day — decided by the pure policy (reconciler/vehicle/policy.py).
+locks, the local time of day — decided by the pure policy (reconciler/core/vehicle/policy.py).
 
 Place in the flow: the executor asks `hold` just before the first cutover step (the `Gate`
-port, execution/ports.py); `lpam gates` asks `states`. Preparation (fetch, dependencies,
+port, engine/execution/ports.py); `lpam gates` asks `states`. Preparation (fetch, dependencies,
 builds) never waits on a gate: only the swap of the running app does.
 
 How the speed is known: a recording (a libpanda CSV followed as it grows, a log) has
@@ -26,16 +26,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.adapters.can.dbc import speed_definition
-from reconciler.errors import ConfigError, Deferred, VehicleSourceError
-from reconciler.layout import Layout
-from reconciler.vehicle.motion import Motion, Tracker
-from reconciler.vehicle.policy import GateState, all_open, decide
+from reconciler.base.errors import ConfigError, Deferred, VehicleSourceError
+from reconciler.base.layout import Layout
+from reconciler.core.vehicle.motion import Motion, Tracker
+from reconciler.core.vehicle.policy import GateState, all_open, decide
 from schemas.vehicle import GatesSpec, VehicleSpec
 
 if TYPE_CHECKING:
     from reconciler.adapters.can.sources import FrameSource
     from reconciler.adapters.locks import UpdateLocks
-    from reconciler.vehicle.signal import SignalDef
+    from reconciler.core.vehicle.signal import SignalDef
 
 LISTEN_SLICE = 1.0  # seconds of frames read between two decisions while waiting
 FIRST_LISTEN = 3.0  # a live bus is heard this long (at most stale_seconds) to know the speed
@@ -177,7 +177,7 @@ class _Watch:
         return found
 
     def _feed(self, messages: Sequence[object] | Iterator[object]) -> None:
-        from reconciler.vehicle.signal import decode
+        from reconciler.core.vehicle.signal import decode
 
         signal = self._signal
         if signal is None:

@@ -53,18 +53,18 @@ from reconciler.adapters import integrity
 from reconciler.adapters.objectsize import object_size
 from reconciler.adapters.remote import RemoteRefs, Transport
 from reconciler.adapters.wire import durable
-from reconciler.atomic import fsync_dir, write_atomic
-from reconciler.errors import (
+from reconciler.base.atomic import fsync_dir, write_atomic
+from reconciler.base.errors import (
     GitError,
     LocalEditsError,
     LpamError,
     RefNotFoundError,
     StoreDamagedError,
 )
-from reconciler.execution.ports import READ_LIMIT, ambiguous
-from reconciler.layout import Layout, slug
-from reconciler.reading import MIB
-from reconciler.text import escaped
+from reconciler.base.layout import Layout, slug
+from reconciler.base.reading import MIB
+from reconciler.base.text import escaped
+from reconciler.engine.execution.ports import READ_LIMIT, ambiguous
 from schemas.names import is_hex_commit, redact
 
 BLOBS_LIMIT = 10_000  # files in one app folder; more is not an app folder to compare

@@ -1,7 +1,7 @@
 """Is a checkout of the repository store sound? The check behind `GitStore.damage`.
 
 Place in the flow: `plan` and `apply` ask it of every repository before they read one
-(observe/targets.py), and `GitStore` asks it when a read of a checkout fails, to tell
+(engine/observe/targets.py), and `GitStore` asks it when a read of a checkout fails, to tell
 damage (a truncated pack, flipped bytes, a lost index: what a power cut or a failing SD
 card leaves) from a bug in lpam. The store is a cache of the remotes, so damage is not
 repaired here: apply fetches the repository anew (`GitStore.renew`).
@@ -34,7 +34,7 @@ from pathlib import Path
 
 from dulwich.repo import Repo
 
-from reconciler.atomic import write_atomic
+from reconciler.base.atomic import write_atomic
 
 _CHUNK = 1024 * 1024
 _IDX_MAGIC = b"\377tOc"

@@ -47,8 +47,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
-from reconciler.errors import LpamError, shorten
-from reconciler.text import printable
+from reconciler.base.errors import LpamError, shorten
+from reconciler.base.text import printable
 
 PROC = Path("/proc")
 UNKNOWN_COMMAND = "?"

@@ -16,8 +16,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from reconciler.blobs import blob_id
-from reconciler.errors import (
+from reconciler.base.blobs import blob_id
+from reconciler.base.errors import (
     Deferred,
     DependencyError,
     GitError,
@@ -25,9 +25,9 @@ from reconciler.errors import (
     StepError,
     StoreDamagedError,
 )
-from reconciler.execution.ports import HEADS, READ_LIMIT, Log, RemoteRefs, ambiguous
-from reconciler.layout import Layout, slug
-from reconciler.vehicle.policy import GateState
+from reconciler.base.layout import Layout, slug
+from reconciler.core.vehicle.policy import GateState
+from reconciler.engine.execution.ports import HEADS, READ_LIMIT, Log, RemoteRefs, ambiguous
 from schemas.names import is_hex_commit
 
 Folder = tuple[str, dict[str, str]]  # (tree hash, file name → text)

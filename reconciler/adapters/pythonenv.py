@@ -37,9 +37,9 @@ from packaging.utils import canonicalize_name
 from packaging.version import InvalidVersion
 
 from reconciler.adapters.command import run_streamed
-from reconciler.atomic import write_atomic
-from reconciler.errors import DependencyError
-from reconciler.execution.ports import Log
+from reconciler.base.atomic import write_atomic
+from reconciler.base.errors import DependencyError
+from reconciler.engine.execution.ports import Log
 
 MARKER = ".lpam-ready"
 _NAME = re.compile(r"^[0-9a-f]{16}$")

@@ -16,8 +16,8 @@ from pathlib import Path
 from packaging.requirements import Requirement
 
 from reconciler.adapters.pythonenv import PIP_HINT, env_name, satisfies
-from reconciler.errors import DependencyError
-from reconciler.execution.ports import Log
+from reconciler.base.errors import DependencyError
+from reconciler.engine.execution.ports import Log
 from schemas.dependency import requirement_name
 
 

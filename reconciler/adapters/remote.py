@@ -25,8 +25,8 @@ from dulwich.objects import ObjectID
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
-from reconciler.errors import GitError, PushRefusedError
-from reconciler.execution.ports import RemoteRefs as RemoteRefs
+from reconciler.base.errors import GitError, PushRefusedError
+from reconciler.engine.execution.ports import RemoteRefs as RemoteRefs
 from schemas.names import redact
 
 _HEADS = "refs/heads/"

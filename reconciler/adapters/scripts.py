@@ -30,9 +30,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from reconciler.errors import StepError
-from reconciler.execution.ports import DEFAULT_PATH
-from reconciler.reading import open_append
+from reconciler.base.errors import StepError
+from reconciler.base.reading import open_append
+from reconciler.engine.execution.ports import DEFAULT_PATH
 
 PASSED_THROUGH = ("PATH", "HOME", "LANG", "LC_ALL", "TERM", "USER", "LOGNAME", "TZ")
 GRACE_SECONDS = 5.0

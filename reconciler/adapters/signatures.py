@@ -15,7 +15,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from reconciler.errors import TrustError
+from reconciler.base.errors import TrustError
 
 SSH_SIGNATURE = b"-----BEGIN SSH SIGNATURE-----"
 TIMEOUT = 30.0

@@ -43,7 +43,7 @@ from dulwich.objects import ObjectID
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
-from reconciler.atomic import fsync_dir
+from reconciler.base.atomic import fsync_dir
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from reconciler.adapters.catkin import CatkinWorkspace, build_failed, current_user
-from reconciler.execution.ports import Log
+from reconciler.engine.execution.ports import Log
 
 
 class MemoryWorkspace(CatkinWorkspace):

@@ -7,5 +7,5 @@ plan: planning.plan_file / plan · apply: applying.apply_file / apply · a saved
 applying.apply_plan_file / apply_saved · start|stop|restart: operate.operate_installed ·
 rollback: operate.roll_back · gates in force and now: gates · history: history · logs:
 logs · sync and agent: agent (one_pass, Agent), sync · bundle: packing, bundle · pin: pin ·
-fleet: fleet · import-lpam: importing · status: reconciler/status.py · defaults: defaults.
+fleet: fleet · import-lpam: importing · status: reconciler/report/status.py · defaults: defaults.
 """

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
@@ -36,7 +36,7 @@ def next_wait(interval: float, failures: int, draw: float) -> float:
 
 def settings(layout: Layout, file: Path | None) -> AgentConfig:
     """The agent's settings: `file`, else agent.yaml under the root."""
-    from reconciler.documents import load_agent
+    from reconciler.core.documents import load_agent
 
     return load_agent(file if file is not None else layout.agent_config)
 
@@ -117,7 +117,7 @@ def install_ble(machine: Machine, command: list[str], *, report: Report) -> list
 
 def _install_units(machine: Machine, units: dict[str, str], report: Report) -> list[str]:
     from reconciler.adapters.services.systemd import SystemdServices
-    from reconciler.atomic import write_atomic
+    from reconciler.base.atomic import write_atomic
     from reconciler.workflow.events import Note
 
     written = []

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.errors import LpamError
-from reconciler.layout import KEEP_GENERATIONS
+from reconciler.base.errors import LpamError
+from reconciler.base.layout import KEEP_GENERATIONS
 from reconciler.workflow.defaults import LOCK_TIMEOUT, SCRIPT_TIMEOUT
 from reconciler.workflow.events import Planned, Progress, Report
 from reconciler.workflow.machine import Machine
@@ -21,8 +21,8 @@ from reconciler.workflow.planning import prepare
 
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
-    from reconciler.execution.lock import Lock
-    from reconciler.execution.ports import Gate, Listener
+    from reconciler.engine.execution.lock import Lock
+    from reconciler.engine.execution.ports import Gate, Listener
     from reconciler.workflow.sync import Followed
     from schemas.desired import DesiredState
     from schemas.plan import Plan
@@ -60,9 +60,9 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
     """`lpam apply [-f FILE]`: the plan is reported (`Planned`) and `confirm`ed before it
     runs; nothing changes when it is declined. `local`: use no network, resolving refs as
     the last fetch (or an unpacked bundle) left them; refused if anything is not local."""
-    from reconciler.execution.lock import apply_lock
-    from reconciler.observe.targets import Fetch
-    from reconciler.planning.plan import unknown_values
+    from reconciler.core.planning.plan import unknown_values
+    from reconciler.engine.execution.lock import apply_lock
+    from reconciler.engine.observe.targets import Fetch
 
     with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         if options.release:
@@ -90,7 +90,7 @@ def apply_file(machine: Machine, path: Path, *, options: ApplyOptions,
                confirm: Callable[[Plan], bool], report: Report) -> Applied:
     """`lpam apply [-f FILE]`: the desired state at `path` read — refused before the lock,
     while the network helper starts — then applied as `apply` does."""
-    from reconciler.documents import load_desired
+    from reconciler.core.documents import load_desired
 
     machine.warm_network()
     if options.release and path == machine.layout.desired_state:
@@ -106,7 +106,7 @@ def _end_override(machine: Machine, options: ApplyOptions, report: Report) -> Fo
     """`lpam apply --release` on a car under a local override (workflow/override.py):
     the override ends, and the desired state to apply is the fleet's file at the revision
     the agent applied (None: no override, or the agent never applied one)."""
-    from reconciler.execution.lock import apply_lock
+    from reconciler.engine.execution.lock import apply_lock
     from reconciler.workflow import override
     from reconciler.workflow.sync import applied_desired
 
@@ -135,7 +135,7 @@ def apply_plan_file(machine: Machine, path: Path, *, options: ApplyOptions,
     """`lpam apply PLANFILE`: the saved plan is read, validated step by step and its seal
     checked before anything waits for the lock (a tampered plan is refused at once, at its
     line and column), then applied as `apply_saved` says."""
-    from reconciler.documents import load_plan
+    from reconciler.core.documents import load_plan
 
     saved = load_plan(path)
     return apply_saved(machine, saved, str(path), options=options, report=report)
@@ -146,9 +146,9 @@ def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOpt
     """`lpam apply PLANFILE`: refused when it is stale, edited, offline or inexact. A plan
     holds no gates: it obeys those of the desired state in force (workflow/gates.py), read
     here before the lock, so that no caller can run one ungated by forgetting them."""
-    from reconciler.execution.lock import apply_lock
-    from reconciler.planning.plan import check_plan
-    from reconciler.state import read_record
+    from reconciler.core.planning.plan import check_plan
+    from reconciler.engine.execution.lock import apply_lock
+    from reconciler.engine.records.state import read_record
     from reconciler.workflow.gates import governing
 
     gates = governing(machine, None)
@@ -163,7 +163,7 @@ def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOpt
 def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
                  options: ApplyOptions, report: Report, gate: Gate | None,
                  listener: Listener | None, desired: DesiredRef | None = None) -> Applied:
-    from reconciler.execution.executor import execute
+    from reconciler.engine.execution.executor import execute
 
     ctx, log = machine.context(store, lock, command="apply",
                                script_timeout=options.script_timeout, report=report,
@@ -177,7 +177,7 @@ def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
 def standing(machine: Machine, apps: Sequence[AppRecord] | None = None) -> str:
     """The installed apps as they stand (the record's, unless given), each unit asked of
     the service manager."""
-    from reconciler.state import read_record
+    from reconciler.engine.records.state import read_record
 
     current = read_record(machine.layout).apps if apps is None else apps
     if not current:
@@ -195,7 +195,7 @@ def _standing(machine: Machine, app: AppRecord) -> str:
 
 
 def _release(machine: Machine, report: Report) -> None:
-    from reconciler.state import read_record, write_record
+    from reconciler.engine.records.state import read_record, write_record
 
     record = read_record(machine.layout)
     hold = record.hold

@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from reconciler.errors import ConfigError, LpamError
+from reconciler.base.errors import ConfigError, LpamError
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
@@ -44,7 +44,7 @@ def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report
            lock_timeout: float = FETCH_LOCK_TIMEOUT) -> int:
     """Write the bundle of `url`'s `branch` to `out`; how many repositories it holds."""
     from reconciler.adapters import bundle
-    from reconciler.execution.lock import apply_lock
+    from reconciler.engine.execution.lock import apply_lock
 
     store = machine.store()
     with apply_lock(machine.layout, timeout=lock_timeout):
@@ -65,7 +65,7 @@ def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report
 
 def _pinned(machine: Machine, url: str, tip: str, report: Report) -> list[Entry]:
     """Every repository (app and ROS) that a desired state of the source at `tip` pins."""
-    from reconciler.observe.targets import Fetch, resolve
+    from reconciler.engine.observe.targets import Fetch, resolve
 
     store = machine.store()
     names = [DEFAULT_FILE] + [f"{VEHICLE_DIR}/{n}" for n in
@@ -110,7 +110,7 @@ def unpack(machine: Machine, path: Path, url: str, branch: str, *,
            lock_timeout: float = FETCH_LOCK_TIMEOUT) -> str:
     """Bring the bundle at `path` into the store; the source revision it carries."""
     from reconciler.adapters import bundle
-    from reconciler.execution.lock import apply_lock
+    from reconciler.engine.execution.lock import apply_lock
 
     with bundle.opened(path) as (manifest, pack):
         source = manifest["source"]

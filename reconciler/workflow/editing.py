@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from reconciler import roundtrip
-from reconciler.errors import LpamError
+from reconciler.base import roundtrip
+from reconciler.base.errors import LpamError
 from reconciler.workflow import override
 from reconciler.workflow.applying import Applied, ApplyOptions, apply, apply_file
 from reconciler.workflow.events import Note, Report
@@ -58,7 +58,7 @@ def checked(what: str, value: str, rule: Callable[[str], str] | None = None) -> 
     """`value` as a frontend gave it, refused unless it is a plain word: no leading '-'
     (it would read as an option to a command), no whitespace or control character, no
     '..'; then `rule` (the schema's own check for that kind of value)."""
-    from reconciler.text import escaped, shorten
+    from reconciler.base.text import escaped, shorten
 
     shown = shorten(escaped(value), 80)
     if not value:
@@ -97,7 +97,7 @@ def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOpt
 
     Version 2 (`apps:`, several apps side by side): NAME replaces the listed apps that
     claim an exclusive resource NAME claims (the panda, a serial GPS, a unit: see
-    planning/resources.py) and leaves the others as they are, entries, params and
+    core/planning/resources.py) and leaves the others as they are, entries, params and
     comments; NAME claiming nothing is added beside them, and NAME already listed changes
     nothing. A user asks for an app, not for the end of the others: only what cannot run
     beside it goes. The claims are read from the catalogs in the repository store as
@@ -158,7 +158,7 @@ def _claims(machine: Machine, current: DesiredState, name: str) -> dict[str, fro
     """The exclusive resources of each listed app and of `name`, resolved from the
     catalogs with no network (the store as the last fetch left it). Raises LpamError,
     saying why, when one of them cannot be known here."""
-    from reconciler.observe.targets import Fetch, resolve
+    from reconciler.engine.observe.targets import Fetch, resolve
     from schemas.desired import AppSpec
 
     probe = current.model_copy(update={"apps": [*current.apps, AppSpec(name=name)]})
@@ -255,7 +255,7 @@ def remove_repository(machine: Machine, repository: str, *, by: str, options: Ap
     """The repository leaves the desired state (lpam removes its checkout). Refused when
     it is not listed, or when an installed or a desired app comes from it (any of them,
     when several run): the app would lose its source mid-flight; switch apps first."""
-    from reconciler.state import read_record
+    from reconciler.engine.records.state import read_record
 
     checked("repository", repository)
     installed = read_record(machine.layout).apps
@@ -363,8 +363,8 @@ def edit(machine: Machine, change: Change, *, by: str, options: ApplyOptions,
     """Load the editable desired state, `change` it, validate the result as a hand edit
     is validated, and apply it (see `_apply`). Everything up to the apply happens before
     the lock: a refused edit never waits."""
-    from reconciler.documents import desired_from
-    from reconciler.loading import load
+    from reconciler.base.loading import load
+    from reconciler.core.documents import desired_from
 
     found = override.editable(machine)
     doc = load(found.path, found.text)
@@ -387,7 +387,7 @@ def _apply(machine: Machine, found: override.Editable, text: str, desired: Desir
     (nothing on the machine changes), under the lock again. Either way only if the file
     still holds what the edit began from: two frontends editing at once must not undo
     each other's change (the second is refused, to be made again on the new text)."""
-    from reconciler.execution.lock import apply_lock
+    from reconciler.engine.execution.lock import apply_lock
 
     old = None if found.seeded else found.text.encode("utf-8")
     new = text.encode("utf-8")
@@ -417,7 +417,7 @@ def _apply(machine: Machine, found: override.Editable, text: str, desired: Desir
 
 def _unchanged(path: Path, old: bytes | None) -> None:
     """Refuse to write over a desired state that changed since the edit read it."""
-    from reconciler.reading import read_bounded
+    from reconciler.base.reading import read_bounded
 
     try:
         now = read_bounded(path, limit=len(old or b"") + 1, what="the desired state",
@@ -435,7 +435,7 @@ def _unchanged(path: Path, old: bytes | None) -> None:
 def _put(path: Path, data: bytes | None, before: bytes | None) -> None:
     """`path` holds `data` (None: no file), written atomically with the file's mode kept;
     nothing is written when it already holds it."""
-    from reconciler.atomic import fsync_dir, write_atomic
+    from reconciler.base.atomic import fsync_dir, write_atomic
 
     if data == before:
         return
@@ -455,7 +455,7 @@ def _version_one(data: Any, path: Path) -> None:
     """Edits are made in the file's own version's terms, version 1 or 2; an older
     document (LPAM's manifest, version 0.0) is refused rather than edited into a mixture
     of two formats."""
-    from reconciler.errors import ConfigError
+    from reconciler.base.errors import ConfigError
 
     if not isinstance(data, dict) or data.get("version") not in EDITABLE \
             or isinstance(data.get("version"), bool):

@@ -2,7 +2,7 @@
 
 Each car publishes its status to the branch `status/<vehicle>` of the desired-state
 repository when it changed and at least every heartbeat (workflow/sync.py `publish`,
-reconciler/publication.py). In any clone of that repository, after a fetch, this reads
+reconciler/core/publication.py). In any clone of that repository, after a fetch, this reads
 those branches and says per vehicle which file of the repository it follows, which
 revision it applied against the branch the cars follow, its apps (a car may run several:
 each is named, with whether it runs), how its last pass ended, and how old its last report
@@ -17,8 +17,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from reconciler.errors import ConfigError
-from reconciler.text import printable
+from reconciler.base.errors import ConfigError
+from reconciler.base.text import printable
 from schemas.fleet import CarStatus
 
 PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
@@ -42,7 +42,7 @@ class Vehicle:
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
     """(the followed branch's tip, one row per vehicle with a status branch)."""
     from reconciler.adapters.clone import published
-    from reconciler.publication import STATUS_FILE, read_status_file
+    from reconciler.core.publication import STATUS_FILE, read_status_file
 
     tip, files = published(repo_path, branch=branch, prefixes=PREFIXES,
                            file=STATUS_FILE.encode())

@@ -13,12 +13,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.errors import LpamError
+from reconciler.base.errors import LpamError
 from reconciler.workflow.machine import Machine
 
 if TYPE_CHECKING:
-    from reconciler.execution.ports import Gate, Listener
-    from reconciler.vehicle.policy import GateState
+    from reconciler.core.vehicle.policy import GateState
+    from reconciler.engine.execution.ports import Gate, Listener
     from reconciler.workflow.sync import Followed
 
 
@@ -35,7 +35,7 @@ def in_force(machine: Machine, file: Path | None) -> Followed | None:
     """The desired state in force (see the module): `file`, else the default file, else
     the agent's. One that cannot be read leaves the gates unknown, which is refused rather
     than guessed; `file` given but absent: none."""
-    from reconciler.documents import load_desired
+    from reconciler.core.documents import load_desired
     from reconciler.workflow.sync import Followed, applied_desired
 
     path = file if file is not None else machine.layout.desired_state
@@ -75,7 +75,7 @@ class GatesNow:
 
 def gates_now(machine: Machine, path: Path) -> GatesNow:
     """`lpam gates`: the update gates of the desired state at `path`, asked now."""
-    from reconciler.documents import load_desired
+    from reconciler.core.documents import load_desired
 
     desired = load_desired(path)
     gate = machine.gate_for(desired, path.resolve().parent)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
 from schemas.record import HistoryEntry
 
 
@@ -22,8 +22,8 @@ class Made:
 
 def history(layout: Layout) -> list[Made]:
     """Every generation the record remembers making current, oldest first."""
-    from reconciler.execution.recovery import same_set
-    from reconciler.state import read_record
+    from reconciler.engine.execution.recovery import same_set
+    from reconciler.engine.records.state import read_record
     from schemas.record import history_sets
 
     record = read_record(layout)

@@ -5,19 +5,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from reconciler.errors import ConfigError
-from reconciler.layout import Layout
+from reconciler.base.errors import ConfigError
+from reconciler.base.layout import Layout
 
 
 def import_legacy(layout: Layout, etc_dir: Path | None, *, output: Path | None) -> str:
     """The desired state of LPAM's folder `etc_dir` (default: the root's), written to
     `output` when given (refused if it exists); returns its text."""
-    from reconciler.legacy import import_lpam
+    from reconciler.engine.records.legacy import import_lpam
 
     text = import_lpam(etc_dir if etc_dir is not None else layout.libpanda)
     if output is None:
         return text
-    from reconciler.atomic import write_atomic
+    from reconciler.base.atomic import write_atomic
 
     if output.exists():
         raise ConfigError("already exists; lpam will not overwrite it", path=output,

@@ -4,7 +4,7 @@ phone's `A` (its `app_info` rows), made once here for both.
 One row per app of every repository of the default desired state, read from the
 repository store at the commit the desired state resolves to *without network* (a branch
 as the last fetch left it): the table answers at once in a staging area with no WiFi,
-and while an apply runs. The rows themselves are `lpam status`'s (reconciler/status.py:
+and while an apply runs. The rows themselves are `lpam status`'s (reconciler/report/status.py:
 files read from committed blobs, never a checkout; a damaged copy does not fail the
 table), so both say the same thing; a repository never fetched has no row yet. Every
 installed app is enabled (a car runs several side by side since issue 22: a controller
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.errors import LpamError
+from reconciler.base.errors import LpamError
 from reconciler.workflow import override
 from reconciler.workflow.machine import Machine
 
@@ -48,10 +48,10 @@ def app_table(machine: Machine) -> list[AppRow]:
     """Every app of every repository of the default desired state, offline; each
     installed app enabled (several run side by side since issue 22), at its catalog's
     place, or last when the catalog no longer lists it."""
-    from reconciler import status
-    from reconciler.documents import desired_from
-    from reconciler.loading import load
-    from reconciler.state import read_record
+    from reconciler.base.loading import load
+    from reconciler.core.documents import desired_from
+    from reconciler.engine.records.state import read_record
+    from reconciler.report import status
 
     found = override.editable(machine)
     desired = desired_from(load(found.path, found.text))
@@ -72,7 +72,7 @@ def _offline(machine: Machine, store: GitStore, desired: DesiredState, spec: Rep
              path: Path) -> RepositoryRecord | None:
     """The commit `spec` resolves to with no network, as a record's entry (None: not
     known here yet, or its copy is damaged: no rows until an apply fetches it)."""
-    from reconciler.observe.targets import Fetch, resolve
+    from reconciler.engine.observe.targets import Fetch, resolve
     from schemas.record import RepositoryRecord
 
     alone = desired.model_copy(update={"repositories": [spec], "apps": []})
@@ -90,7 +90,7 @@ def _offline(machine: Machine, store: GitStore, desired: DesiredState, spec: Rep
 def current_apps(machine: Machine) -> list[str]:
     """The installed apps' names, in the order they were installed (LPAM's `current:`,
     which named one); empty when there is none."""
-    from reconciler.state import read_record
+    from reconciler.engine.records.state import read_record
 
     return [app.name for app in read_record(machine.layout).apps]
 
@@ -98,7 +98,7 @@ def current_apps(machine: Machine) -> list[str]:
 def service_state(machine: Machine) -> str:
     """Each installed app's unit as its service manager sees it now, one a line (LPAM's
     `-t`, which had one app)."""
-    from reconciler.state import read_record
+    from reconciler.engine.records.state import read_record
 
     apps = read_record(machine.layout).apps
     if not apps:

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.errors import LpamError
-from reconciler.layout import Layout
+from reconciler.base.errors import LpamError
+from reconciler.base.layout import Layout
 from reconciler.workflow.machine import Machine
 
 if TYPE_CHECKING:
@@ -50,7 +50,7 @@ def app_logs(machine: Machine, lines: int, app: str | None = None) -> Shown:
     line prefixed with `APP | ` as `docker compose logs` does, which is what a user who
     typed no name expects; notes name the app too. An unknown name is refused, naming
     the installed apps."""
-    from reconciler.state import read_record
+    from reconciler.engine.records.state import read_record
 
     installed = read_record(machine.layout).apps
     if not installed:

@@ -16,16 +16,16 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.layout import Layout
-from reconciler.reading import open_append
+from reconciler.base.layout import Layout
+from reconciler.base.reading import open_append
 from reconciler.workflow.events import Output, Report
 from schemas.kinds import ServiceKind
 
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
-    from reconciler.execution.context import Context
-    from reconciler.execution.lock import Lock
-    from reconciler.execution.ports import DependencyPorts, Gate, Listener, Services
+    from reconciler.engine.execution.context import Context
+    from reconciler.engine.execution.lock import Lock
+    from reconciler.engine.execution.ports import DependencyPorts, Gate, Listener, Services
     from schemas.desired import DesiredState
     from schemas.record import DesiredRef
 
@@ -58,7 +58,7 @@ def dependency_ports(layout: Layout, env: Mapping[str, str] = os.environ) -> Dep
     from reconciler.adapters.apt import AptPackages
     from reconciler.adapters.catkin import CatkinWorkspace
     from reconciler.adapters.pythonenv import VenvPythonEnvs
-    from reconciler.execution.ports import DependencyPorts
+    from reconciler.engine.execution.ports import DependencyPorts
 
     return DependencyPorts(packages=AptPackages(),
                            envs=VenvPythonEnvs(layout.venvs, python=env.get("LPAM_PYTHON")),
@@ -137,8 +137,8 @@ class Machine:
         from reconciler.adapters.catkin import find_underlay
         from reconciler.adapters.folders import DiskFolders
         from reconciler.adapters.scripts import ScriptRunner
-        from reconciler.execution.context import Context
-        from reconciler.state import read_record
+        from reconciler.engine.execution.context import Context
+        from reconciler.engine.records.state import read_record
 
         started = self.clock().strftime("%Y%m%dT%H%M%SZ")
         log = self.layout.logs / f"{command}-{started}-{os.getpid()}.log"

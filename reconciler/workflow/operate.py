@@ -19,15 +19,16 @@ from contextlib import contextmanager
 from datetime import datetime
 from pathlib import Path
 
-from reconciler import __version__, generations
-from reconciler.errors import LpamError
-from reconciler.execution.context import Context
-from reconciler.execution.executor import execute
-from reconciler.execution.lock import apply_lock
-from reconciler.layout import KEEP_GENERATIONS
-from reconciler.planning.lifecycle import operator_steps
-from reconciler.planning.model import GenerationKey
-from reconciler.planning.plan import fingerprint
+from reconciler import __version__
+from reconciler.base.errors import LpamError
+from reconciler.base.layout import KEEP_GENERATIONS
+from reconciler.core.planning.lifecycle import operator_steps
+from reconciler.core.planning.model import GenerationKey
+from reconciler.core.planning.plan import fingerprint
+from reconciler.engine.execution.context import Context
+from reconciler.engine.execution.executor import execute
+from reconciler.engine.execution.lock import apply_lock
+from reconciler.engine.records import generations
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.gates import governing
@@ -74,7 +75,7 @@ def roll_back(machine: Machine, *, file: Path | None, force: bool, options: Appl
     the one-app world) is found and `confirm`ed, then made current (see `rollback`); None
     when it was declined. It holds
     against `file` (else the default file) when no apply recorded what it applied."""
-    from reconciler.documents import load_desired
+    from reconciler.core.documents import load_desired
 
     path = file if file is not None else machine.layout.desired_state
     desired = load_desired(path) if path.exists() else None
@@ -176,7 +177,7 @@ def gates_passed(ctx: Context, progress: ProgressLine) -> Iterator[None]:
 def previous_good(ctx: Context) -> list[HistoryEntry]:
     """The last good set of apps (the history's sets: schemas/record.py `history_sets`)
     other than the one installed, every generation of it still on disk."""
-    from reconciler.execution.recovery import same_set
+    from reconciler.engine.execution.recovery import same_set
     from schemas.record import history_sets
 
     present = generations.present(ctx.layout)
@@ -197,7 +198,7 @@ def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | 
     mid-rollback, the next plan finishes it (workflow.planning). It holds against the
     desired state last applied, whichever file or revision that came from (`desired`, the
     default file's, counts only when no apply recorded one)."""
-    from reconciler.execution.recovery import steps_back
+    from reconciler.engine.execution.recovery import steps_back
 
     applied = ctx.record.desired
     one = entries[0] if len(entries) == 1 else None

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from reconciler.errors import LpamError
+from reconciler.base.errors import LpamError
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
 
@@ -46,14 +46,14 @@ def follows_fleet(machine: Machine) -> bool:
 
 def active(machine: Machine) -> LocalOverride | None:
     """The override in force, None when the car follows its fleet file (or none)."""
-    from reconciler.state import read_override
+    from reconciler.engine.records.state import read_override
 
     return read_override(machine.layout)
 
 
 def editable(machine: Machine) -> Editable:
     """The desired state a local edit starts from (see the module docstring)."""
-    from reconciler.loading import read_text
+    from reconciler.base.loading import read_text
 
     path = machine.layout.desired_state
     if path.exists():
@@ -69,7 +69,7 @@ def editable(machine: Machine) -> Editable:
 def _seed(machine: Machine) -> str | None:
     """The fleet's file at the revision the car applied, as text, with its relative URLs
     and files made absolute; None before the agent applied any revision."""
-    from reconciler.loading import dump, load
+    from reconciler.base.loading import dump, load
     from reconciler.workflow.source import SOURCE_KEY
     from reconciler.workflow.sync import applied_desired, read_status
 
@@ -108,7 +108,7 @@ def _anchor(tree: Any, found: Followed) -> None:
 def begin(machine: Machine, *, by: str, seeded: bool) -> LocalOverride | None:
     """Record that a local edit (by `by`) was applied; on a car that follows no fleet an
     edit is no override (None). The first edit's time and starting point are kept."""
-    from reconciler.atomic import write_atomic
+    from reconciler.base.atomic import write_atomic
     from reconciler.workflow.sync import read_status
     from schemas.override import LocalOverride
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from reconciler.errors import LpamError
-from reconciler.layout import Layout
+from reconciler.base.errors import LpamError
+from reconciler.base.layout import Layout
 from reconciler.workflow.events import Report
 
 
@@ -19,7 +19,7 @@ def make_bundle(layout: Layout, out: Path, *, url: str | None, branch: str | Non
     from reconciler.workflow.machine import Machine
 
     if url is None or branch is None:
-        from reconciler.documents import load_agent
+        from reconciler.core.documents import load_agent
 
         if url is None and not layout.agent_config.exists():
             raise LpamError("which desired-state repository?",

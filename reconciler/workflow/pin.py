@@ -14,8 +14,8 @@ import io
 from dataclasses import dataclass
 from pathlib import Path
 
-from reconciler import roundtrip
-from reconciler.errors import ConfigError
+from reconciler.base import roundtrip
+from reconciler.base.errors import ConfigError
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
@@ -34,9 +34,9 @@ class Pinned:
 def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
         write: bool = True, lock_timeout: float | None = None) -> list[Pinned]:
     """Pin `path` in place (unless not `write`); the repositories pinned."""
-    from reconciler.atomic import write_atomic
-    from reconciler.documents import load_desired
-    from reconciler.loading import read_text
+    from reconciler.base.atomic import write_atomic
+    from reconciler.base.loading import read_text
+    from reconciler.core.documents import load_desired
 
     desired = load_desired(path)  # refuse a bad file before anything is asked of a remote
     store = machine.store()
@@ -80,10 +80,10 @@ def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
 def _report_ros(machine: Machine, path: Path, report: Report, *,
                 lock_timeout: float) -> None:
     """The ROS repositories of the app the file names, as they resolve now."""
-    from reconciler.documents import load_desired
-    from reconciler.execution.lock import apply_lock
-    from reconciler.legacy.appdir import libpanda_user
-    from reconciler.observe.targets import Fetch, resolve
+    from reconciler.core.documents import load_desired
+    from reconciler.engine.execution.lock import apply_lock
+    from reconciler.engine.observe.targets import Fetch, resolve
+    from reconciler.engine.records.legacy.appdir import libpanda_user
 
     desired = load_desired(path)
     with apply_lock(machine.layout, timeout=lock_timeout):  # a fetch into the store is a write

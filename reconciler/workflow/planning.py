@@ -13,15 +13,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler import __version__
-from reconciler.errors import LockError, LpamError
+from reconciler.base.errors import LockError, LpamError
 from reconciler.workflow.defaults import LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Phase, Report
 from reconciler.workflow.machine import Machine
 
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
-    from reconciler.observe.targets import Fetch
-    from reconciler.planning.model import Observed, Targets
+    from reconciler.core.planning.model import Observed, Targets
+    from reconciler.engine.observe.targets import Fetch
     from schemas.desired import DesiredState
     from schemas.plan import Plan
     from schemas.record import StateRecord
@@ -31,8 +31,8 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
          offline: bool = False, out: Path | None = None, lock_timeout: float | None = None) -> Plan:
     """`lpam plan`: exact when it can take the lock, from what is local beside a running
     apply (said in a note) or when `offline`. `out` saves the plan (an exact one only)."""
-    from reconciler.execution.lock import apply_lock, holder
-    from reconciler.observe.targets import Fetch
+    from reconciler.engine.execution.lock import apply_lock, holder
+    from reconciler.engine.observe.targets import Fetch
 
     if offline and out is not None:
         raise LpamError("an --offline plan cannot be saved: it may hold values known only "
@@ -45,7 +45,7 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
                         timeout=LOCK_TIMEOUT if lock_timeout is None else lock_timeout):
             _, made = prepare(machine, path, desired, fetch=Fetch.OBJECTS, report=report)
             if out is not None:
-                from reconciler.atomic import write_atomic
+                from reconciler.base.atomic import write_atomic
 
                 write_atomic(out, made.model_dump_json(indent=2) + "\n")
             return made
@@ -61,7 +61,7 @@ def plan_file(machine: Machine, path: Path, *, report: Report, offline: bool = F
               out: Path | None = None, lock_timeout: float | None = None) -> Plan:
     """`lpam plan [-f FILE]`: the desired state at `path` read (refused before any lock),
     then planned as `plan` does."""
-    from reconciler.documents import load_desired
+    from reconciler.core.documents import load_desired
 
     return plan(machine, path, load_desired(path), report=report, offline=offline, out=out,
                 lock_timeout=lock_timeout)
@@ -71,11 +71,11 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
             report: Report, busy: str | None = None) -> tuple[GitStore, Plan]:
     """Resolve the desired state, observe the machine and plan; `path` anchors relative
     URLs. `busy` is what holds the lock when the caller planned beside a running apply."""
-    from reconciler.legacy.appdir import libpanda_user
-    from reconciler.observe.machine import asks_manager, observe
-    from reconciler.observe.targets import Fetch, resolve
-    from reconciler.planning.plan import make_plan
-    from reconciler.state import read_record
+    from reconciler.core.planning.plan import make_plan
+    from reconciler.engine.observe.machine import asks_manager, observe
+    from reconciler.engine.observe.targets import Fetch, resolve
+    from reconciler.engine.records.legacy.appdir import libpanda_user
+    from reconciler.engine.records.state import read_record
 
     layout = machine.layout
     store = machine.store()
@@ -108,11 +108,11 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
 
 
 def refuse_shared_claims(desired: DesiredState, path: Path, targets: Targets) -> None:
-    """Two desired apps that claim one exclusive resource (planning/resources.py) are
+    """Two desired apps that claim one exclusive resource (core/planning/resources.py) are
     refused once their catalogs are read, before anything on the car changes, at the
     second app's place in the desired state and naming the first's."""
-    from reconciler.documents import app_place
-    from reconciler.planning.resources import Claim, Where, conflicts, refuse
+    from reconciler.core.documents import app_place
+    from reconciler.core.planning.resources import Claim, Where, conflicts, refuse
 
     claims = []
     for index, app in enumerate(targets.apps):
@@ -161,10 +161,10 @@ def interrupted_note(interrupted: tuple[str, ...], made: Plan) -> str:
 def _held_plan(machine: Machine, store: GitStore, record: StateRecord, hold: str,
                report: Report) -> Plan:
     """While a rollback holds: the steps that finish it if it was cut off, else nothing."""
-    from reconciler.observe.machine import observe
-    from reconciler.planning.lifecycle import target_of
-    from reconciler.planning.model import Observed, RepoTarget, Targets
-    from reconciler.planning.plan import make_plan
+    from reconciler.core.planning.lifecycle import target_of
+    from reconciler.core.planning.model import Observed, RepoTarget, Targets
+    from reconciler.core.planning.plan import make_plan
+    from reconciler.engine.observe.machine import observe
 
     entries = record.hold.returns_to() if record.hold is not None else []
     if entries:
@@ -184,11 +184,11 @@ def _finishing_plan(machine: Machine, record: StateRecord, report: Report) -> Pl
     """A rollback that a fault cut off is finished before anything else: its steps back
     to the good app it was returning to, by the rules of any plan, whatever the desired
     state says now (the next run goes on from there)."""
-    from reconciler import generations
-    from reconciler.execution.recovery import names, steps_back
-    from reconciler.observe.machine import lives
-    from reconciler.planning.lifecycle import refreshed
-    from reconciler.planning.plan import sealed
+    from reconciler.core.planning.lifecycle import refreshed
+    from reconciler.core.planning.plan import sealed
+    from reconciler.engine.execution.recovery import names, steps_back
+    from reconciler.engine.observe.machine import lives
+    from reconciler.engine.records import generations
     from schemas.plan import Action, Change
 
     assert record.cutover is not None and record.cutover.rollback is not None

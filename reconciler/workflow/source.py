@@ -48,8 +48,8 @@ def desired_at(machine: Machine, url: str, revision: str,
                name: str) -> tuple[Path, DesiredState] | None:
     """The desired state in the file `name` of the source at `revision` (None without it),
     relative URLs made absolute; faults are located as `fleet.git@c92f32f2ab56/<name>`."""
-    from reconciler.documents import desired_from
-    from reconciler.loading import load
+    from reconciler.base.loading import load
+    from reconciler.core.documents import desired_from
 
     data = machine.store().read_file(SOURCE_KEY, revision, name)
     if data is None:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.errors import (
+from reconciler.base.errors import (
     ConfigError,
     Deferred,
     GitError,
@@ -40,7 +40,7 @@ from reconciler.errors import (
     StoreDamagedError,
     TrustError,
 )
-from reconciler.state import read_override
+from reconciler.engine.records.state import read_override
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Progress, Report
@@ -187,7 +187,7 @@ def _overridden(machine: Machine, local: LocalOverride, revision: str, *,
     """A local override is in force (workflow/override.py): the pass applies the local
     file, not the fleet's — which finishes an edit a power cut interrupted, and leaves one
     that was applied as it is — and the fleet's revision waits for the override's end."""
-    from reconciler.documents import load_desired
+    from reconciler.core.documents import load_desired
 
     path = machine.layout.desired_state
     why = (f"local override ({local.by}, since {local.since}): the fleet's revision "
@@ -218,14 +218,14 @@ STATUS_PREFIX = "status/"
 
 def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     """Push this vehicle's status to `status/<vehicle>` of the source when it is due
-    (reconciler/publication.py: changed, or the heartbeat), so that `lpam fleet status` in
+    (reconciler/core/publication.py: changed, or the heartbeat), so that `lpam fleet status` in
     any clone shows the whole fleet from git alone; an unchanged status costs no connection
     and no commit. The branch holds at most `HISTORY` commits. A source that refuses pushes
     (a read-only mirror, a token without write access) costs a note, nothing more: the car
     keeps working and its status stays local."""
-    from reconciler import status as machine_status
-    from reconciler.atomic import write_atomic
-    from reconciler.publication import APP_FIELDS, due, fingerprint, status_file
+    from reconciler.base.atomic import write_atomic
+    from reconciler.core.publication import APP_FIELDS, due, fingerprint, status_file
+    from reconciler.report import status as machine_status
 
     own = read_status(machine)
     if own.vehicle is None:
@@ -269,7 +269,7 @@ def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *,
     commits, else starting it afresh. A server that refuses to rewrite the branch (git's
     receive.denyNonFastForwards, a protected branch) gets it on top after all: a status
     published with a growing history is better than none."""
-    from reconciler.publication import HISTORY, STATUS_FILE, keeps_parent
+    from reconciler.core.publication import HISTORY, STATUS_FILE, keeps_parent
 
     store = machine.store()
     length = store.history_length(SOURCE_KEY, branch, limit=HISTORY)
@@ -293,7 +293,7 @@ def vehicle_id(machine: Machine, config: AgentConfig) -> str:
     if config.vehicle is not None:
         return config.vehicle
     if config.vehicle_file is not None:
-        from reconciler.reading import read_bounded
+        from reconciler.base.reading import read_bounded
 
         path = machine.layout.under(config.vehicle_file)
         try:
@@ -333,8 +333,8 @@ class Remote:
 def _fetch(machine: Machine, config: AgentConfig, report: Report, *,
            lock_timeout: float) -> str | None:
     """Fetch the source under the lock (a fetch is a write); the reason when offline."""
-    from reconciler.execution.lock import apply_lock
-    from reconciler.observe.targets import sound_copy
+    from reconciler.engine.execution.lock import apply_lock
+    from reconciler.engine.observe.targets import sound_copy
 
     try:
         with apply_lock(machine.layout, timeout=lock_timeout):
@@ -405,7 +405,7 @@ def _files_of(machine: Machine, revision: str, name: str, desired: DesiredState,
     are copied there once, as they were committed."""
     import shutil
 
-    from reconciler.atomic import write_atomic
+    from reconciler.base.atomic import write_atomic
 
     root = machine.layout.agent_files
     folder = posixpath.dirname(name)
@@ -433,7 +433,7 @@ def applied_desired(machine: Machine) -> Followed | None:
     """The desired state the agent last applied (from the store, no network), for what
     must obey it between passes — an operator's stop obeys its update gates; None on a
     car with no agent or before its first applied pass."""
-    from reconciler.documents import load_agent
+    from reconciler.core.documents import load_agent
 
     if not machine.layout.agent_config.exists():
         return None
@@ -466,13 +466,13 @@ def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: s
 
 
 def read_status(machine: Machine) -> AgentStatus:
-    from reconciler.state import read_agent_status
+    from reconciler.engine.records.state import read_agent_status
 
     return read_agent_status(machine.layout) or AgentStatus()
 
 
 def _record(machine: Machine, status: AgentStatus, outcome: Synced) -> Synced:
-    from reconciler.atomic import write_atomic
+    from reconciler.base.atomic import write_atomic
 
     attempt = Attempt(time=machine.clock().isoformat(timespec="seconds"),
                       revision=outcome.revision, result=outcome.result,

@@ -33,7 +33,7 @@ import pytest
 
 from reconciler.adapters.can.csvlog import HEADER
 from reconciler.adapters.can.sources import FrameSource, open_source
-from reconciler.errors import VehicleSourceError
+from reconciler.base.errors import VehicleSourceError
 from tests.canlog import (
     CandumpWriter,
     CsvWriter,

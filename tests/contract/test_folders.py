@@ -1,4 +1,4 @@
-"""The AppFolders port (execution/ports.py) held to what the engine relies on, against its
+"""The AppFolders port (engine/execution/ports.py) held to what the engine relies on, against its
 disk implementation (adapters/folders.py): staging is idempotent, a folder that went missing
 is restored from the store (and a tree that is not the planned one refused), the installed
 generation is reachable at `/etc/libpanda.d/apps/<folder>`, and releasing or pruning keeps
@@ -13,10 +13,10 @@ import pytest
 
 from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import MemoryStore
-from reconciler.errors import StepError
-from reconciler.execution.ports import AppFolders
-from reconciler.layout import Layout
-from reconciler.planning.model import Generation, GenerationKey
+from reconciler.base.errors import StepError
+from reconciler.base.layout import Layout
+from reconciler.core.planning.model import Generation, GenerationKey
+from reconciler.engine.execution.ports import AppFolders
 
 URL, KEY = "git://h/apps", "lab/apps"
 OLD, NEW = "a" * 40, "b" * 40

@@ -26,7 +26,7 @@ from reconciler.adapters.locks import (
     parse_proc_locks,
     probe,
 )
-from reconciler.errors import LpamError
+from reconciler.base.errors import LpamError
 
 WAIT_SECONDS = 5.0
 

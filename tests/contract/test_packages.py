@@ -13,8 +13,8 @@ import pytest
 
 from reconciler.adapters.apt import AptPackages
 from reconciler.adapters.memory import MemoryPackages
-from reconciler.errors import DependencyError
-from reconciler.execution.ports import Packages
+from reconciler.base.errors import DependencyError
+from reconciler.engine.execution.ports import Packages
 
 PRESENT = "bash"  # dpkg lists it as installed on every Debian machine
 ABSENT = "lpam-test-no-such-package"

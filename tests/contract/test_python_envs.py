@@ -24,8 +24,8 @@ import pytest
 
 from reconciler.adapters.pythonenv import MARKER, VenvPythonEnvs
 from reconciler.adapters.pythonenv_memory import MemoryPythonEnvs
-from reconciler.errors import DependencyError
-from reconciler.execution.ports import PythonEnvs
+from reconciler.base.errors import DependencyError
+from reconciler.engine.execution.ports import PythonEnvs
 from tests.wheels import env_holds, hermetic_pip, pip_runs_in, unpack, user_site, write_wheel
 
 ALPHA = "lpam-demo-alpha"

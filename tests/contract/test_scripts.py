@@ -15,8 +15,8 @@ import pytest
 
 from reconciler.adapters.memory import MemoryScripts
 from reconciler.adapters.scripts import ScriptRunner
-from reconciler.errors import StepError
-from reconciler.execution.ports import Scripts
+from reconciler.base.errors import StepError
+from reconciler.engine.execution.ports import Scripts
 
 RUN = "0123456789abcdef0123456789abcdef"
 

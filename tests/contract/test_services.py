@@ -35,10 +35,10 @@ from supervisor.options import ServerOptions  # type: ignore[import-untyped]
 from reconciler.adapters.services import supervisor_conf
 from reconciler.adapters.services.memory import MemoryServices
 from reconciler.adapters.services.supervisor import SupervisorServices, check_user, shutdown
-from reconciler.errors import ServiceError
-from reconciler.execution.ports import Services
-from reconciler.layout import Layout
-from reconciler.unit import Unit, UnitState
+from reconciler.base.errors import ServiceError
+from reconciler.base.layout import Layout
+from reconciler.base.unit import Unit, UnitState
+from reconciler.engine.execution.ports import Services
 
 NAME = "lpam-app-alpha"
 PY = sys.executable

@@ -17,9 +17,9 @@ import pytest
 
 from reconciler.adapters.git import GitStore
 from reconciler.adapters.memory import MemoryStore
-from reconciler.errors import GitError, RefNotFoundError, StoreDamagedError
-from reconciler.execution.ports import RemoteRefs, Resolving
-from reconciler.layout import Layout
+from reconciler.base.errors import GitError, RefNotFoundError, StoreDamagedError
+from reconciler.base.layout import Layout
+from reconciler.engine.execution.ports import RemoteRefs, Resolving
 from tests.gitserver import GitDaemon, RepoBuilder
 
 KEY = "apps"
@@ -138,7 +138,7 @@ def test_folder_blobs_name_each_file_by_its_content(
 ) -> None:
     """What a copy of the folder on disk is compared with when an app LPAM installed is
     adopted: each file's git blob id, whatever its mode."""
-    from reconciler.blobs import blob_id
+    from reconciler.base.blobs import blob_id
 
     store, remote, _ = world
     store.fetch(KEY, remote.url)
@@ -224,7 +224,7 @@ def test_remove_keeps_a_damaged_copy_aside(world: tuple[Resolving, Remote, Layou
     assert [p.name for p in layout.repositories.glob("*~damaged")] == [f".{KEY}~damaged"]
 
 
-# -- what resolving a desired state asks of the store (observe/targets.py) -----------------
+# -- what resolving a desired state asks of the store (engine/observe/targets.py) -----------------
 
 
 def test_what_a_remote_advertises_and_what_the_last_fetch_saw(
@@ -282,9 +282,9 @@ def test_fetching_objects_moves_no_checkout(world: tuple[Resolving, Remote, Layo
 def test_resolving_a_desired_state_reads_the_same_from_either_store(
     world: tuple[Resolving, Remote, Layout], ref: str | None, which: str,
 ) -> None:
-    """observe/targets.py resolves against the port: the twin gives what the real store
+    """engine/observe/targets.py resolves against the port: the twin gives what the real store
     gives, online, and offline from what the last fetch saw."""
-    from reconciler.observe.targets import Fetch, resolve
+    from reconciler.engine.observe.targets import Fetch, resolve
     from schemas.desired import DesiredState
 
     store, remote, layout = world

@@ -24,8 +24,8 @@ import pytest
 
 from reconciler.adapters.catkin import CatkinWorkspace, current_user
 from reconciler.adapters.workspace_memory import MemoryWorkspace
-from reconciler.errors import DependencyError
-from reconciler.execution.ports import Workspace
+from reconciler.base.errors import DependencyError
+from reconciler.engine.execution.ports import Workspace
 from tests.catkin import write_package
 
 KEY = "0123abcd"

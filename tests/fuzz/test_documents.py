@@ -26,11 +26,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from reconciler.documents import load_desired, load_plan, parse_catalog
-from reconciler.errors import ConfigError, LpamError
-from reconciler.layout import Layout
-from reconciler.legacy import import_lpam
-from reconciler.state import read_record
+from reconciler.base.errors import ConfigError, LpamError
+from reconciler.base.layout import Layout
+from reconciler.core.documents import load_desired, load_plan, parse_catalog
+from reconciler.engine.records.legacy import import_lpam
+from reconciler.engine.records.state import read_record
 
 EXAMPLES = int(os.environ.get("LPAM_FUZZ_EXAMPLES", "150"))
 MESSAGE_LIMIT = 600  # the path, line and column come on top of LpamError's 400

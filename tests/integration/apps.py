@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from reconciler.adapters.services.supervisor import shutdown
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
 from tests.gitserver import RepoBuilder
 
 SCRIPT = """#!/usr/bin/env bash

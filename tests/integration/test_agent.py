@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.documents import load_agent
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
+from reconciler.core.documents import load_agent
 from reconciler.workflow.agent import Agent, next_wait
 from reconciler.workflow.events import Event, Progress
 from reconciler.workflow.machine import Machine

@@ -25,8 +25,8 @@ from typing import Any
 
 import pytest
 
-from reconciler.execution.lock import apply_lock
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
+from reconciler.engine.execution.lock import apply_lock
 from tests.bluez_double import BluezDouble, until
 from tests.dbus import needs_dbus_daemon, private_bus
 from tests.gitserver import GitDaemon, RepoBuilder

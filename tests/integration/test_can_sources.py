@@ -197,7 +197,7 @@ def test_a_recording_lpam_may_not_read_is_named_with_what_to_do(tmp_path: Path) 
     code = f"""
         from pathlib import Path
         from reconciler.adapters.can.sources import open_source
-        from reconciler.errors import VehicleSourceError
+        from reconciler.base.errors import VehicleSourceError
         try:
             open_source(follow=Path({str(path)!r}))
         except VehicleSourceError as exc:

@@ -32,7 +32,7 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.catkin import CatkinWorkspace, current_user
-from reconciler.errors import DependencyError
+from reconciler.base.errors import DependencyError
 from tests.catkin import COMPILE_ERROR, MARK_VAR, write_package
 from tests.contract.test_services import alive, wait_for
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, apps_repo, desired
 from tests.integration.conftest import fleet_state

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.services.supervisor import shutdown
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
 from tests.catkin import MARK_VAR, write_package
 from tests.contract.test_packages import ABSENT, recording_apt_get
 from tests.gitserver import GitDaemon, RepoBuilder, free_port

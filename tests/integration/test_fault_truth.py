@@ -25,7 +25,7 @@ from typing import Any
 import pytest
 
 from reconciler.adapters.services.supervisor import shutdown
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, apps_repo, desired, processes
 

@@ -24,9 +24,9 @@ from typing import Any
 
 import pytest
 
-from reconciler.documents import load_agent
-from reconciler.layout import Layout
-from reconciler.publication import HISTORY
+from reconciler.base.layout import Layout
+from reconciler.core.documents import load_agent
+from reconciler.core.publication import HISTORY
 from reconciler.workflow.agent import Agent
 from reconciler.workflow.events import Event, Note
 from reconciler.workflow.machine import Machine

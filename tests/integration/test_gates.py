@@ -290,7 +290,7 @@ def test_health_by_can_an_app_that_stops_talking_is_rolled_back(
     tmp_path: Path, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon,
 ) -> None:
     from reconciler.adapters.services.supervisor import shutdown
-    from reconciler.layout import Layout
+    from reconciler.base.layout import Layout
 
     builder = make_repo("talker.git")
     builder.write("libpanda-apps.yaml", TALKER_CATALOG)

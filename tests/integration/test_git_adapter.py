@@ -23,8 +23,8 @@ from dulwich.repo import Repo
 
 from reconciler.adapters.git import GitStore
 from reconciler.adapters.objectsize import object_size
-from reconciler.errors import GitError, LocalEditsError, RefNotFoundError
-from reconciler.layout import Layout
+from reconciler.base.errors import GitError, LocalEditsError, RefNotFoundError
+from reconciler.base.layout import Layout
 from tests.gitserver import FIXED_ENV, GitDaemon, RepoBuilder, free_port
 
 KEY = "lab/apps"

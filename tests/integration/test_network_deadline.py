@@ -25,8 +25,8 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.git import GitStore
-from reconciler.errors import GitError
-from reconciler.layout import Layout
+from reconciler.base.errors import GitError
+from reconciler.base.layout import Layout
 from tests.gitserver import RepoBuilder, free_port
 from tests.hostile_servers import GIT_DRIP, HTTP_DRIP, HostileServer
 
@@ -241,7 +241,7 @@ def test_a_killed_lpam_takes_its_ssh_along(
     script = textwrap.dedent(f"""
         from pathlib import Path
         from reconciler.adapters.git import GitStore
-        from reconciler.layout import Layout
+        from reconciler.base.layout import Layout
         GitStore(Layout(root=Path({str(layout.root)!r})), timeout=600).ls_remote(
             "ssh://127.0.0.1:{free_port()}/lab/apps.git")
     """)

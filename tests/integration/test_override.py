@@ -22,7 +22,7 @@ from tests.integration.conftest import fleet_state
 
 
 def shim(car: Lpam, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "reconciler.shim", *args],
+    return subprocess.run([sys.executable, "-m", "reconciler.frontends.shim", *args],
                           capture_output=True, text=True, timeout=120,
                           env={**os.environ, "LPAM_ROOT": str(car.root)})
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.planning.plan import fingerprint
+from reconciler.core.planning.plan import fingerprint
 from schemas.plan import Plan
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, add_app, apps_repo, desired

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.pythonenv import MARKER, VenvPythonEnvs
-from reconciler.errors import DependencyError
+from reconciler.base.errors import DependencyError
 from tests.wheels import env_holds, hermetic_pip, pip_runs_in, unpack, user_site, write_wheel
 
 SPEEDO = "lpam-demo-speedo"  # provides the module `speedo`, not `lpam_demo_speedo`

@@ -22,8 +22,8 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.services.supervisor import shutdown
-from reconciler.errors import LpamError
-from reconciler.layout import Layout
+from reconciler.base.errors import LpamError
+from reconciler.base.layout import Layout
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.machine import Machine
 from tests.gitserver import GitDaemon, RepoBuilder
@@ -50,7 +50,7 @@ class Shim(FieldCar):
 
     def __call__(self, *args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
         env = {**os.environ, "LPAM_ROOT": str(self.root)}
-        return subprocess.run([sys.executable, "-m", "reconciler.shim", *args],
+        return subprocess.run([sys.executable, "-m", "reconciler.frontends.shim", *args],
                               capture_output=True, text=True, timeout=timeout, env=env)
 
     def ok(self, *args: str) -> str:
@@ -132,7 +132,7 @@ def test_the_table_is_lpams_and_bluezone_reads_it(shim: Shim) -> None:
     assert lines[2].startswith("fleet/apps\tmain\ttocker\t\tno\tno\t\"")
     assert out.isascii()
     rows = bluezone_rows(subprocess.run(
-        [sys.executable, "-m", "reconciler.shim", "-d"], capture_output=True, check=True,
+        [sys.executable, "-m", "reconciler.frontends.shim", "-d"], capture_output=True, check=True,
         env={**os.environ, "LPAM_ROOT": str(shim.root)}).stdout)
     assert rows == [
         {"repository": "fleet/apps", "branch": "main", "app": "ticker",

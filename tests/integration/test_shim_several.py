@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.services.supervisor import shutdown
-from reconciler.layout import Layout
-from reconciler.process import alive
+from reconciler.base.layout import Layout
+from reconciler.base.process import alive
 from reconciler.workflow.machine import Machine
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import TICKER
@@ -90,7 +90,7 @@ def enabled(shim: Shim) -> list[tuple[str, str, str]]:
 
 def phone_rows(shim: Shim) -> list[tuple[str, str, str]]:
     """(app, enabled, running) of the phone's `app_info` message, joined and decoded."""
-    from reconciler.ble.answers import app_info
+    from reconciler.frontends.ble.answers import app_info
 
     body = json.loads(b"".join(app_info(Machine.at(Layout(shim.root)))).rstrip(b"\0"))
     assert body["type"] == "app_info"

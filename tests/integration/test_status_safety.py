@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, add_app, apps_repo, desired
 

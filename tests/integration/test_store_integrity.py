@@ -14,8 +14,8 @@ from dulwich.objects import Blob
 from dulwich.repo import Repo
 
 from reconciler.adapters.git import GitStore
-from reconciler.errors import LpamError, StoreDamagedError
-from reconciler.layout import Layout
+from reconciler.base.errors import LpamError, StoreDamagedError
+from reconciler.base.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import apps_repo
 

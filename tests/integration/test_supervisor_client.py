@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.services.supervisor_daemon import Client
-from reconciler.errors import ServiceError
+from reconciler.base.errors import ServiceError
 
 
 def test_a_supervisord_that_never_answers_is_called_hung(tmp_path: Path) -> None:

@@ -23,9 +23,9 @@ import pytest
 from reconciler.adapters.services.choice import choose
 from reconciler.adapters.services.systemd import SystemdServices
 from reconciler.adapters.services.unitfile import HEADER
-from reconciler.errors import LpamError, ServiceError
-from reconciler.layout import Layout
-from reconciler.unit import Unit, UnitState
+from reconciler.base.errors import LpamError, ServiceError
+from reconciler.base.layout import Layout
+from reconciler.base.unit import Unit, UnitState
 
 FIXTURES = Path(__file__).parent.parent / "fixtures" / "systemctl"
 NAME = "lpam-app-demo"

@@ -16,8 +16,8 @@ from dulwich.refs import Ref
 from dulwich.repo import Repo
 
 from reconciler.adapters.git import GitStore
-from reconciler.errors import GitError
-from reconciler.layout import Layout
+from reconciler.base.errors import GitError
+from reconciler.base.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 
 KEY = "lab/apps"

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.services.supervisor import shutdown
-from reconciler.layout import Layout
-from reconciler.state import read_record
+from reconciler.base.layout import Layout
+from reconciler.engine.records.state import read_record
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.events import Event, Phase, Planned, Progress
 from reconciler.workflow.machine import Machine
@@ -43,7 +43,7 @@ def document(machine: Machine, make_repo: Callable[[str], RepoBuilder],
 def test_apply_reports_its_plan_then_each_step_and_prints_nothing(
     machine: Machine, document: Path, capsys: pytest.CaptureFixture[str],
 ) -> None:
-    from reconciler.documents import load_desired
+    from reconciler.core.documents import load_desired
 
     events: list[Event] = []
     done = apply(machine, document, load_desired(document), options=ApplyOptions(),
@@ -60,7 +60,7 @@ def test_apply_reports_its_plan_then_each_step_and_prints_nothing(
 
 
 def test_a_declined_plan_changes_nothing(machine: Machine, document: Path) -> None:
-    from reconciler.documents import load_desired
+    from reconciler.core.documents import load_desired
 
     seen: list[Plan] = []
 
@@ -76,7 +76,7 @@ def test_a_declined_plan_changes_nothing(machine: Machine, document: Path) -> No
 
 
 def test_a_plan_reports_its_phases_in_order(machine: Machine, document: Path) -> None:
-    from reconciler.documents import load_desired
+    from reconciler.core.documents import load_desired
 
     events: list[Event] = []
     made = plan(machine, document, load_desired(document), report=events.append)

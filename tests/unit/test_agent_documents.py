@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.documents import load_agent
-from reconciler.errors import ConfigError, VersionError
+from reconciler.base.errors import ConfigError, VersionError
+from reconciler.core.documents import load_agent
 from reconciler.workflow.sync import join_url
 
 

@@ -9,8 +9,8 @@ from typing import Any
 
 import pytest
 
-from reconciler.errors import ConfigError
-from reconciler.layout import Layout
+from reconciler.base.errors import ConfigError
+from reconciler.base.layout import Layout
 from reconciler.workflow import agent
 from reconciler.workflow.agent import Agent, install_agent, one_pass, settings
 from reconciler.workflow.applying import ApplyOptions

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from reconciler import atomic
+from reconciler.base import atomic
 
 
 def _trace(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, str]]:

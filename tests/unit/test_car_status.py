@@ -1,5 +1,5 @@
 """The status a car publishes on `status/<vehicle>` is a typed, versioned document, written
-and read in one module (reconciler/publication.py): what a car writes reads back, and what
+and read in one module (reconciler/core/publication.py): what a car writes reads back, and what
 cars of older lpam versions published (no `version`, an agent status version 1) is still
 read; what cannot be read is said, never half-understood."""
 
@@ -14,9 +14,9 @@ import pytest
 
 import migrations
 from migrations import car_status_v0_to_v1
-from reconciler.errors import ConfigError, VersionError
-from reconciler.loading import load
-from reconciler.publication import fingerprint, read_status_file, status_file
+from reconciler.base.errors import ConfigError, VersionError
+from reconciler.base.loading import load
+from reconciler.core.publication import fingerprint, read_status_file, status_file
 from schemas.agent import AgentStatus, Attempt
 from schemas.fleet import CarStatus
 from schemas.override import LocalOverride

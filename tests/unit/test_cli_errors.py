@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from reconciler import cli
+from reconciler.frontends import cli
 
 
 def test_unexpected_error_goes_to_the_debug_log(
@@ -52,9 +52,9 @@ def test_a_debug_log_planted_as_a_link_is_not_written_through(
 
 
 def test_a_lock_file_planted_as_a_link_or_a_directory_is_refused(tmp_path: Path) -> None:
-    from reconciler.errors import LockError
-    from reconciler.execution.lock import apply_lock
-    from reconciler.layout import Layout
+    from reconciler.base.errors import LockError
+    from reconciler.base.layout import Layout
+    from reconciler.engine.execution.lock import apply_lock
 
     layout = Layout(tmp_path)
     outside = tmp_path / "outside.txt"

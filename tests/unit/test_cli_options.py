@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from reconciler import cli
-from reconciler.layout import KEEP_GENERATIONS
+from reconciler.base.layout import KEEP_GENERATIONS
+from reconciler.frontends import cli
 
 
 def subcommands() -> dict[str, argparse.ArgumentParser]:

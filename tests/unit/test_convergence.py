@@ -28,19 +28,19 @@ from pathlib import Path
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from reconciler import generations
 from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import Crash, MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
-from reconciler.errors import ServiceError, StepError
-from reconciler.execution.context import Context
-from reconciler.execution.executor import execute
-from reconciler.layout import Layout
-from reconciler.observe.machine import observe
-from reconciler.planning.model import AppTarget, RepoTarget, Targets, generation_id
-from reconciler.planning.plan import make_plan
-from reconciler.state import read_record, write_record
-from reconciler.unit import Unit
+from reconciler.base.errors import ServiceError, StepError
+from reconciler.base.layout import Layout
+from reconciler.base.unit import Unit
+from reconciler.core.planning.model import AppTarget, RepoTarget, Targets, generation_id
+from reconciler.core.planning.plan import make_plan
+from reconciler.engine.execution.context import Context
+from reconciler.engine.execution.executor import execute
+from reconciler.engine.observe.machine import observe
+from reconciler.engine.records import generations
+from reconciler.engine.records.state import read_record, write_record
 from schemas.record import AppRecord, RepositoryRecord, StateRecord, Stray
 
 URL, KEY = "git://h/apps", "lab/apps"

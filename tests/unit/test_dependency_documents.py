@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.documents import load_desired, parse_catalog
-from reconciler.errors import ConfigError
+from reconciler.base.errors import ConfigError
+from reconciler.core.documents import load_desired, parse_catalog
 from schemas.dependency import requirement_name
 
 CATALOG = Path("lab@0123abcd/libpanda-apps.yaml")

@@ -8,8 +8,8 @@ from datetime import datetime, timezone
 
 import pytest
 
-from reconciler.errors import PlanError
-from reconciler.planning.model import (
+from reconciler.base.errors import PlanError
+from reconciler.core.planning.model import (
     AppTarget,
     Deps,
     DepsObserved,
@@ -21,8 +21,8 @@ from reconciler.planning.model import (
     Targets,
     WorkspaceTarget,
 )
-from reconciler.planning.plan import check_plan, make_plan
-from reconciler.planning.render import render
+from reconciler.core.planning.plan import check_plan, make_plan
+from reconciler.core.planning.render import render
 from schemas.plan import Action, AptStep, BuildStep, Phase, Plan, StepKind
 from schemas.record import AppRecord, RepositoryRecord, StateRecord
 

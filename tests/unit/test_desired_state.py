@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.documents import load_desired, parse_catalog
-from reconciler.errors import ConfigError, VersionError
+from reconciler.base.errors import ConfigError, VersionError
+from reconciler.core.documents import load_desired, parse_catalog
 from schemas.desired import DesiredState
 from schemas.export import FOLDER, rendered
 

@@ -17,15 +17,15 @@ from typing import Any
 import pytest
 
 from migrations import desired_state_v1_to_v2, upgrade
-from reconciler.documents import load_desired
-from reconciler.errors import ConfigError
-from reconciler.layout import Layout
-from reconciler.loading import load
-from reconciler.validation import validate
+from reconciler.base.errors import ConfigError
+from reconciler.base.layout import Layout
+from reconciler.base.loading import load
+from reconciler.core.documents import load_desired
 from reconciler.workflow import editing
 from reconciler.workflow.applying import Applied, ApplyOptions
 from reconciler.workflow.events import Event
 from reconciler.workflow.machine import Machine
+from reconciler.workflow.validation import validate
 from schemas.desired import CURRENT_VERSION, DesiredState
 from schemas.export import DOCUMENTS, FOLDER, FROZEN
 

@@ -1,5 +1,5 @@
 """Edits of the desired state (workflow/editing.py) and the shim's pure parts
-(reconciler/shim.py): a round trip keeps comments, order and `version:`; a bad value is
+(reconciler/frontends/shim.py): a round trip keeps comments, order and `version:`; a bad value is
 refused before any lock (it never waits on another apply) and changes nothing; the
 command line is read as LPAM's getopts read it; `-d`'s cells survive bluezone's decoding.
 
@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.errors import CatalogError, ConfigError, LockError, LpamError
-from reconciler.execution.lock import apply_lock
-from reconciler.layout import Layout
-from reconciler.shim import Command, UsageError, bluezone_safe, parse, table
+from reconciler.base.errors import CatalogError, ConfigError, LockError, LpamError
+from reconciler.base.layout import Layout
+from reconciler.engine.execution.lock import apply_lock
+from reconciler.frontends.shim import Command, UsageError, bluezone_safe, parse, table
 from reconciler.workflow import editing
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.events import Event, Planned
@@ -192,7 +192,7 @@ def test_an_edit_never_writes_over_a_change_made_while_it_waited(machine: Machin
 def test_a_bug_is_one_line_and_its_traceback_goes_to_the_debug_log(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from reconciler import shim
+    from reconciler.frontends import shim
 
     def broken(machine: Machine, command: Command) -> None:
         raise RuntimeError("a bug")

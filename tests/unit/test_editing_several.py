@@ -19,8 +19,8 @@ from typing import Any
 import pytest
 
 from reconciler.adapters.memory import MemoryStore
-from reconciler.execution.ports import RemoteRefs
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
+from reconciler.engine.execution.ports import RemoteRefs
 from reconciler.workflow import editing
 from reconciler.workflow.applying import Applied, ApplyOptions
 from reconciler.workflow.events import Event, Note
@@ -211,8 +211,8 @@ def test_a_version_1_file_keeps_its_one_app(tmp_path: Path, caught: dict[str, An
 def test_no_installed_app_loses_its_repository(tmp_path: Path, caught: dict[str, Any]) -> None:
     """`-r` / `app_remove_repository` is refused for the repository of any installed app,
     not only the first one installed."""
-    from reconciler.errors import LpamError
-    from reconciler.state import write_record
+    from reconciler.base.errors import LpamError
+    from reconciler.engine.records.state import write_record
     from schemas.record import AppRecord, StateRecord
 
     tools = "https://github.com/extra/tools"

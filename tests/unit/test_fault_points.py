@@ -23,15 +23,15 @@ import pytest
 
 from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import Crash
-from reconciler.errors import HealthError, LpamError, StateWriteError
-from reconciler.execution import context as context_module
-from reconciler.execution.context import Context
-from reconciler.execution.executor import execute
-from reconciler.layout import Layout
-from reconciler.observe.machine import observe
-from reconciler.planning.model import AppTarget, HealthTarget
-from reconciler.planning.plan import make_plan
-from reconciler.state import read_record, write_record
+from reconciler.base.errors import HealthError, LpamError, StateWriteError
+from reconciler.base.layout import Layout
+from reconciler.core.planning.model import AppTarget, HealthTarget
+from reconciler.core.planning.plan import make_plan
+from reconciler.engine.execution import context as context_module
+from reconciler.engine.execution.context import Context
+from reconciler.engine.execution.executor import execute
+from reconciler.engine.observe.machine import observe
+from reconciler.engine.records.state import read_record, write_record
 from reconciler.workflow.operate import operate
 from schemas.operator import OperatorAction
 from schemas.plan import Plan
@@ -85,7 +85,7 @@ class Car(World):
     def run(self, name: str) -> LpamError | None:
         """One `lpam apply` of `name`, as the workflow makes it (a rollback that was cut
         off is finished first); the error it ended with, None on success."""
-        from reconciler.planning.model import RepoTarget, Targets
+        from reconciler.core.planning.model import RepoTarget, Targets
 
         targets = Targets((RepoTarget(KEY, "git://h/apps", None, C1),), self.target(name))
         record = read_record(self.layout)
@@ -290,8 +290,8 @@ def test_an_unwritable_record_stops_where_it_stands_and_says_so(
 def test_with_no_cutover_recorded_an_unproven_app_is_never_returned_to(tmp_path: Path) -> None:
     """The good app to go back to, when no cut-off apply named one: the installed app if
     it proved good, else the newest good generation of the history still on disk."""
-    from reconciler import generations
-    from reconciler.execution.recovery import returns_to
+    from reconciler.engine.execution.recovery import returns_to
+    from reconciler.engine.records import generations
 
     car = good_x(tmp_path)
     x = read_record(car.layout).app

@@ -10,14 +10,14 @@ import pytest
 
 from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import MemoryGate
-from reconciler.errors import Deferred
-from reconciler.execution.context import Context
-from reconciler.execution.executor import execute
-from reconciler.journal import deferral, interrupted_steps
-from reconciler.observe.machine import observe
-from reconciler.planning.model import generation_id
-from reconciler.planning.plan import make_plan
-from reconciler.state import read_record
+from reconciler.base.errors import Deferred
+from reconciler.core.planning.model import generation_id
+from reconciler.core.planning.plan import make_plan
+from reconciler.engine.execution.context import Context
+from reconciler.engine.execution.executor import execute
+from reconciler.engine.observe.machine import observe
+from reconciler.engine.records.journal import deferral, interrupted_steps
+from reconciler.engine.records.state import read_record
 from reconciler.workflow.operate import operate
 from schemas.operator import OperatorAction
 from schemas.record import AppRecord, RepositoryRecord, StateRecord

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.documents import load_desired
-from reconciler.errors import ConfigError
-from reconciler.vehicle.motion import Motion, Tracker
-from reconciler.vehicle.policy import all_open, decide, within
+from reconciler.base.errors import ConfigError
+from reconciler.core.documents import load_desired
+from reconciler.core.vehicle.motion import Motion, Tracker
+from reconciler.core.vehicle.policy import all_open, decide, within
 from schemas.vehicle import GatesSpec, parse_window
 
 NOW = 1_700_000_000.0

@@ -10,12 +10,12 @@ from typing import cast
 
 import pytest
 
-from reconciler import generations
 from reconciler.adapters.memory import MemoryStore
-from reconciler.execution.context import Context
-from reconciler.execution.steps.folders import as_record, staged
-from reconciler.generations import Generation, read_meta
-from reconciler.layout import Layout
+from reconciler.base.layout import Layout
+from reconciler.engine.execution.context import Context
+from reconciler.engine.execution.steps.folders import as_record, staged
+from reconciler.engine.records import generations
+from reconciler.engine.records.generations import Generation, read_meta
 from schemas.generation import AppGeneration, GenerationMeta
 from schemas.record import AppRecord
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from reconciler.adapters.memory import MemoryGate
-from reconciler.errors import ConfigError, Deferred
-from reconciler.layout import Layout
-from reconciler.state import read_record
+from reconciler.base.errors import ConfigError, Deferred
+from reconciler.base.layout import Layout
+from reconciler.engine.records.state import read_record
 from reconciler.workflow import gates, operate
 from reconciler.workflow.applying import ApplyOptions, apply_saved
 from reconciler.workflow.events import Event

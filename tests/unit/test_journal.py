@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.errors import ConfigError
-from reconciler.journal import Journal, interrupted_steps, read_events
-from reconciler.layout import Layout
+from reconciler.base.errors import ConfigError
+from reconciler.base.layout import Layout
+from reconciler.engine.records.journal import Journal, interrupted_steps, read_events
 
 NOW = datetime(2026, 11, 23, 8, 0, tzinfo=timezone.utc)
 

@@ -8,15 +8,15 @@ from typing import Any
 import pytest
 
 import migrations
-from reconciler.errors import ConfigError, VersionError
-from reconciler.legacy import (
+from reconciler.base.errors import ConfigError, VersionError
+from reconciler.base.loading import load
+from reconciler.engine.records.legacy import (
     branch_of_head,
     import_lpam,
     parse_app_file,
     parse_manifest_csv,
     parse_ros_csv,
 )
-from reconciler.loading import load
 from schemas.desired import DesiredState
 
 FIXTURES = Path(migrations.__file__).parent / "fixtures" / "lpam"

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.errors import LockError
-from reconciler.execution.lock import apply_lock
-from reconciler.layout import KEEP_GENERATIONS, Layout
+from reconciler.base.errors import LockError
+from reconciler.base.layout import KEEP_GENERATIONS, Layout
+from reconciler.engine.execution.lock import apply_lock
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT, LOCK_TIMEOUT
 from reconciler.workflow.machine import Machine

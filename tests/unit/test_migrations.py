@@ -25,9 +25,9 @@ from migrations import (
     upgrade,
 )
 from migrations.step import MigrationError
-from reconciler.errors import ConfigError, VersionError
-from reconciler.loading import load
-from reconciler.planning.plan import fingerprint
+from reconciler.base.errors import ConfigError, VersionError
+from reconciler.base.loading import load
+from reconciler.core.planning.plan import fingerprint
 from schemas.agent import AgentStatus
 from schemas.desired import DesiredState
 from schemas.generation import GenerationMeta

@@ -13,14 +13,14 @@ from typing import Any
 
 import pytest
 
-from reconciler import cli
-from reconciler.documents import load_plan
-from reconciler.errors import ConfigError
-from reconciler.execution.lock import apply_lock
-from reconciler.layout import Layout
-from reconciler.planning.lifecycle import generation_of, on
-from reconciler.planning.model import AppTarget, HealthTarget
-from reconciler.planning.plan import sealed
+from reconciler.base.errors import ConfigError
+from reconciler.base.layout import Layout
+from reconciler.core.documents import load_plan
+from reconciler.core.planning.lifecycle import generation_of, on
+from reconciler.core.planning.model import AppTarget, HealthTarget
+from reconciler.core.planning.plan import sealed
+from reconciler.engine.execution.lock import apply_lock
+from reconciler.frontends import cli
 from schemas.plan import CheckoutStep, HealthCheck, Phase, StepKind, VerifyStep
 from schemas.record import StateRecord
 

@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from reconciler.errors import PlanError, StalePlanError
-from reconciler.planning.diff import diff
-from reconciler.planning.graph import order, sort_graph
-from reconciler.planning.model import (
+from reconciler.base.errors import PlanError, StalePlanError
+from reconciler.core.planning.diff import diff
+from reconciler.core.planning.graph import order, sort_graph
+from reconciler.core.planning.model import (
     AppTarget,
     GenerationKey,
     Observed,
@@ -21,8 +21,8 @@ from reconciler.planning.model import (
     Targets,
     generation_id,
 )
-from reconciler.planning.plan import check_plan, make_plan
-from reconciler.planning.render import render
+from reconciler.core.planning.plan import check_plan, make_plan
+from reconciler.core.planning.render import render
 from schemas.generation import AppGeneration
 from schemas.plan import (
     Action,
@@ -295,7 +295,7 @@ def test_live_state_refreshes_the_record_both_ways() -> None:
     """The record is the prior state; the service manager says what runs now."""
     from dataclasses import replace
 
-    from reconciler.unit import UnitState
+    from reconciler.base.unit import UnitState
 
     running = installed().model_copy(update={"service": "can"})
     down = replace(observed(app_rec=running), live=UnitState("can", known=True,
@@ -320,7 +320,7 @@ def test_live_state_refreshes_the_record_both_ways() -> None:
 def test_an_lpam_app_is_stopped_only_when_its_unit_may_run() -> None:
     from dataclasses import replace
 
-    from reconciler.unit import UnitState
+    from reconciler.base.unit import UnitState
     from schemas.record import Stray
 
     lpam_app = Stray(name="pandarecord", generation="lpam", folder="pandarecord")

@@ -1,4 +1,4 @@
-"""reconciler/privzone/framing.py: what lpam notifies reaches the phone whole, and what a
+"""reconciler/core/privzone/framing.py: what lpam notifies reaches the phone whole, and what a
 phone writes reaches lpam whole, whatever the characters and wherever the cuts fall.
 
 The phone is played by tests/unit/privzone_phone.js under node, which decodes and cuts as
@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from reconciler.privzone.framing import (
+from reconciler.core.privzone.framing import (
     NOTIFICATION_LIMIT,
     STATUS_LIMIT,
     Delivery,
@@ -30,7 +30,7 @@ from reconciler.privzone.framing import (
     too_long_text,
     utf16_length,
 )
-from reconciler.privzone.messages import (
+from reconciler.core.privzone.messages import (
     AddRepository,
     AppEnable,
     AppParams,

@@ -1,4 +1,4 @@
-"""reconciler/privzone/messages.py: each phone message becomes one typed request or one
+"""reconciler/core/privzone/messages.py: each phone message becomes one typed request or one
 status text, and no value the phone sends reaches lpam unless the desired state would
 accept it too."""
 
@@ -9,9 +9,9 @@ from typing import Any
 
 import pytest
 
-from reconciler.errors import LpamError
-from reconciler.privzone.framing import encode_status, utf16_length
-from reconciler.privzone.messages import (
+from reconciler.base.errors import LpamError
+from reconciler.core.privzone.framing import encode_status, utf16_length
+from reconciler.core.privzone.messages import (
     AddRepository,
     AppEnable,
     AppParams,

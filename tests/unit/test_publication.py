@@ -1,4 +1,4 @@
-"""The pure rules of status publishing (reconciler/publication.py): what counts as a
+"""The pure rules of status publishing (reconciler/core/publication.py): what counts as a
 change, when the heartbeat is due, how long a status branch grows. The real git daemon
 counting connections and commits is tests/integration/test_fleet_scale.py."""
 
@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from reconciler.publication import HISTORY, due, fingerprint, keeps_parent
+from reconciler.core.publication import HISTORY, due, fingerprint, keeps_parent
 from schemas.agent import AgentStatus, Attempt, Publication, Result
 
 REV, NEW = "a" * 40, "b" * 40

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.errors import ConfigError, LpamError
-from reconciler.layout import Layout
-from reconciler.state import read_record, write_record
+from reconciler.base.errors import ConfigError, LpamError
+from reconciler.base.layout import Layout
+from reconciler.engine.records.state import read_record, write_record
 from reconciler.workflow.history import history
 from reconciler.workflow.importing import import_legacy
 from reconciler.workflow.logs import Shown, new_output, overlap

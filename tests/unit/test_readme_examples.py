@@ -20,8 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.errors import ConfigError
-from reconciler.validation import Kind, validate
+from reconciler.base.errors import ConfigError
+from reconciler.workflow.validation import Kind, validate
 
 TOP = Path(__file__).resolve().parents[2]
 PAGES = [TOP / "README.md", *sorted((TOP / "docs").glob("*.md"))]

@@ -14,7 +14,7 @@ import can
 import pytest
 
 from reconciler.adapters.can.sources import RecordedSource
-from reconciler.errors import VehicleSourceError
+from reconciler.base.errors import VehicleSourceError
 
 FRAME = can.Message(timestamp=100.0, arbitration_id=0xB4, data=b"\0" * 8)
 
@@ -71,7 +71,7 @@ def test_a_file_that_cannot_be_read_says_so(
 def test_a_gate_reading_a_log_it_cannot_read_has_no_signal_and_says_why(
         monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     from reconciler.adapters.gate import VehicleGate
-    from reconciler.layout import Layout
+    from reconciler.base.layout import Layout
     from schemas.vehicle import GatesSpec, VehicleSpec
 
     (tmp_path / "drive.blf").write_bytes(b"LOGG")

@@ -10,11 +10,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from reconciler.adapters.memory import MemoryStore
-from reconciler.documents import parse_catalog
-from reconciler.errors import ConfigError
-from reconciler.loading import load
-from reconciler.observe.targets import Fetch, resolve
-from reconciler.planning.resources import Claim, Where, conflicts, owners, refuse
+from reconciler.base.errors import ConfigError
+from reconciler.base.loading import load
+from reconciler.core.documents import parse_catalog
+from reconciler.core.planning.resources import Claim, Where, conflicts, owners, refuse
+from reconciler.engine.observe.targets import Fetch, resolve
 from schemas.desired import DesiredState
 
 REAL_CATALOG = Path("/work/shared/reference/libpanda-default-apps.libpanda-apps.yaml")

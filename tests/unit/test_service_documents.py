@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.documents import load_desired, parse_catalog
-from reconciler.errors import ConfigError
+from reconciler.base.errors import ConfigError
+from reconciler.core.documents import load_desired, parse_catalog
 
 CATALOG = Path("lab@0123abcd/libpanda-apps.yaml")
 

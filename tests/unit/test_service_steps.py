@@ -16,12 +16,12 @@ import pytest
 from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
-from reconciler.errors import HealthError, StepError
-from reconciler.execution.context import Context
-from reconciler.execution.steps import RUNNERS
-from reconciler.layout import Layout
-from reconciler.planning.model import generation_id
-from reconciler.state import read_record
+from reconciler.base.errors import HealthError, StepError
+from reconciler.base.layout import Layout
+from reconciler.core.planning.model import generation_id
+from reconciler.engine.execution.context import Context
+from reconciler.engine.execution.steps import RUNNERS
+from reconciler.engine.records.state import read_record
 from schemas.plan import Phase, StepKind
 from schemas.record import StateRecord
 from tests.steps_v1 import ArgValue, step
@@ -255,7 +255,7 @@ def test_a_launch_app_without_a_build_of_its_own_runs_in_the_ros_distribution(
 ) -> None:
     """On the Pi roslaunch is on PATH only once /opt/ros/noetic/setup.bash is sourced;
     Debian's own roslaunch (this machine's) needs nothing."""
-    from reconciler.execution import supervision
+    from reconciler.engine.execution import supervision
 
     services = MemoryServices()
     ctx, _ = machine(tmp_path, services, {"description.txt": "vsl\n"})

@@ -25,18 +25,24 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from reconciler import generations
 from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import Crash, MemoryGate, MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
-from reconciler.errors import Deferred, StepError
-from reconciler.execution.context import Context
-from reconciler.execution.executor import execute
-from reconciler.layout import Layout
-from reconciler.observe.machine import observe
-from reconciler.planning.model import AppTarget, HealthTarget, RepoTarget, Targets, generation_id
-from reconciler.planning.plan import make_plan
-from reconciler.state import read_record, write_record
+from reconciler.base.errors import Deferred, StepError
+from reconciler.base.layout import Layout
+from reconciler.core.planning.model import (
+    AppTarget,
+    HealthTarget,
+    RepoTarget,
+    Targets,
+    generation_id,
+)
+from reconciler.core.planning.plan import make_plan
+from reconciler.engine.execution.context import Context
+from reconciler.engine.execution.executor import execute
+from reconciler.engine.observe.machine import observe
+from reconciler.engine.records import generations
+from reconciler.engine.records.state import read_record, write_record
 from schemas.plan import Plan
 from schemas.record import AppRecord, RepositoryRecord, StateRecord, history_sets
 from tests.unit.test_convergence import C1, C2, KEY, NOW, SCRIPTS, STATUSES, URL

@@ -17,8 +17,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from reconciler.adapters.can.dbc import from_dbc
-from reconciler.errors import ConfigError
-from reconciler.vehicle.signal import RAV4_SPEED, ByteOrder, SignalDef, check, decode, raw
+from reconciler.base.errors import ConfigError
+from reconciler.core.vehicle.signal import RAV4_SPEED, ByteOrder, SignalDef, check, decode, raw
 from tests.canlog import candump_line, drive, recorded_text
 
 FRAME = re.compile(r"^\((?P<ts>[\d.]+)\) \S+ (?P<id>[0-9A-F]+)#(?P<data>[0-9A-F]*)$")

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.atomic import write_atomic
-from reconciler.errors import ConfigError, VersionError
-from reconciler.layout import Layout
-from reconciler.state import read_record, settle, write_record
+from reconciler.base.atomic import write_atomic
+from reconciler.base.errors import ConfigError, VersionError
+from reconciler.base.layout import Layout
+from reconciler.engine.records.state import read_record, settle, write_record
 from schemas.record import AppRecord, AppStatus, StateRecord
 
 

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from reconciler import status
-from reconciler.errors import GitError, StoreDamagedError
-from reconciler.layout import Layout
-from reconciler.state import write_record
+from reconciler.base.errors import GitError, StoreDamagedError
+from reconciler.base.layout import Layout
+from reconciler.engine.records.state import write_record
+from reconciler.report import status
 from schemas.record import AppRecord, AppStatus, RepositoryRecord, StateRecord, Stray
 
 OLD, NEW = "a" * 40, "b" * 40

@@ -20,16 +20,16 @@ from typing import Any
 
 import pytest
 
-from reconciler import status
 from reconciler.adapters.services.memory import MemoryServices
-from reconciler.cli import again
-from reconciler.errors import LpamError
-from reconciler.layout import Layout
-from reconciler.planning.lifecycle import operator_steps
-from reconciler.planning.model import GenerationKey
-from reconciler.publication import fingerprint, read_status_file, status_file
-from reconciler.state import write_record
-from reconciler.unit import UnitState
+from reconciler.base.errors import LpamError
+from reconciler.base.layout import Layout
+from reconciler.base.unit import UnitState
+from reconciler.core.planning.lifecycle import operator_steps
+from reconciler.core.planning.model import GenerationKey
+from reconciler.core.publication import fingerprint, read_status_file, status_file
+from reconciler.engine.records.state import write_record
+from reconciler.frontends.cli import again
+from reconciler.report import status
 from reconciler.workflow import fleet
 from reconciler.workflow.logs import app_logs, new_output
 from reconciler.workflow.machine import Machine

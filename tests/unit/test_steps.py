@@ -16,12 +16,12 @@ import pytest
 from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
-from reconciler.errors import StepError
-from reconciler.execution.context import Context
-from reconciler.execution.steps import RUNNERS
-from reconciler.layout import Layout
-from reconciler.planning.model import generation_id
-from reconciler.state import read_record, write_record
+from reconciler.base.errors import StepError
+from reconciler.base.layout import Layout
+from reconciler.core.planning.model import generation_id
+from reconciler.engine.execution.context import Context
+from reconciler.engine.execution.steps import RUNNERS
+from reconciler.engine.records.state import read_record, write_record
 from schemas.plan import Phase, StepKind
 from schemas.record import AppRecord, StateRecord, Stray
 from tests.steps_v1 import step

@@ -11,10 +11,10 @@ import pytest
 from reconciler.adapters.folders import DiskFolders
 from reconciler.adapters.memory import MemoryScripts, MemoryStore
 from reconciler.adapters.services.memory import MemoryServices
-from reconciler.errors import ServiceError
-from reconciler.execution.context import Context
-from reconciler.execution.supervision import log_tail
-from reconciler.layout import Layout
+from reconciler.base.errors import ServiceError
+from reconciler.base.layout import Layout
+from reconciler.engine.execution.context import Context
+from reconciler.engine.execution.supervision import log_tail
 from schemas.record import StateRecord
 
 
@@ -49,8 +49,8 @@ def test_a_bug_while_reading_logs_raises(tmp_path: Path) -> None:
 
 def test_the_underlay_comes_from_the_context_the_caller_built(tmp_path: Path) -> None:
     """The engine never asks the machine for /opt/ros itself: the workflow gives the probe."""
-    from reconciler.execution.supervision import runtime
-    from reconciler.generations import Generation
+    from reconciler.engine.execution.supervision import runtime
+    from reconciler.engine.records.generations import Generation
 
     ctx = context(tmp_path, MemoryServices())
     ctx.underlay = lambda: Path("/opt/ros/noetic/setup.bash")

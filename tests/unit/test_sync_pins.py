@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from reconciler.errors import CatalogError, GitError
+from reconciler.base.errors import CatalogError, GitError
 from reconciler.workflow import sync
 from reconciler.workflow.events import Event
 from schemas.agent import AgentConfig

@@ -1,9 +1,9 @@
-"""reconciler/text.py: what lpam echoes from outside is one safe line."""
+"""reconciler/base/text.py: what lpam echoes from outside is one safe line."""
 
 from __future__ import annotations
 
-from reconciler.errors import LpamError
-from reconciler.text import escaped, printable, shorten
+from reconciler.base.errors import LpamError
+from reconciler.base.text import escaped, printable, shorten
 
 
 def test_control_characters_are_replaced_never_passed_to_the_terminal() -> None:

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.observe.unit_state import parse_properties, parse_show
-from reconciler.unit import UnitState
+from reconciler.base.unit import UnitState
+from reconciler.engine.observe.unit_state import parse_properties, parse_show
 
 FIXTURES = Path(__file__).parent.parent / "fixtures" / "systemctl"
 

@@ -25,7 +25,7 @@ from reconciler.adapters.services.unitfile import (
     exec_line,
     render_unit,
 )
-from reconciler.unit import Unit
+from reconciler.base.unit import Unit
 
 PROGRAM = os.path.realpath(sys.executable)
 AWKWARD = [
@@ -329,7 +329,7 @@ def test_any_printable_text_round_trips(args: list[str], env: dict[str, str]) ->
 def test_a_launch_app_inside_its_ros_build_reads_back_and_verifies(tmp_path: Path) -> None:
     """The unit of a `launch:` app runs roslaunch through a shell that sources its build's
     setup first: the shell's `$1` and `"$@"` must reach bash, not systemd's expansion."""
-    from reconciler.execution.supervision import ROS_WRAPPER
+    from reconciler.engine.execution.supervision import ROS_WRAPPER
 
     setup = tmp_path / "ws" / ".lpam" / "builds" / "0123456789abcdef" / "devel" / "setup.bash"
     argv = ("/bin/bash", "-c", ROS_WRAPPER, "lpam-ros", str(setup), "roslaunch",

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from reconciler.cli import VALIDATE_KINDS
-from reconciler.errors import ConfigError
-from reconciler.planning.plan import fingerprint, sealed
-from reconciler.validation import Kind, validate
+from reconciler.base.errors import ConfigError
+from reconciler.core.planning.plan import fingerprint, sealed
+from reconciler.frontends.cli import VALIDATE_KINDS
+from reconciler.workflow.validation import Kind, validate
 from schemas.plan import CheckoutStep, Phase
 from schemas.record import StateRecord
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.errors import ConfigError, shorten
+from reconciler.base.errors import ConfigError, shorten
 from schemas.signal import SignalDef, check
 from schemas.vehicle import SignalSpec
 

@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from reconciler.errors import VehicleSourceError
+from reconciler.base.errors import VehicleSourceError
 
 if TYPE_CHECKING:
     import can

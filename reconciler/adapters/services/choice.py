@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from reconciler.errors import ServiceError
+from reconciler.base.errors import ServiceError
 from schemas.kinds import ServiceKind
 
 BACKENDS = tuple(kind.value for kind in ServiceKind)

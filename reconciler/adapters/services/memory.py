@@ -17,8 +17,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from reconciler.errors import ServiceError
-from reconciler.unit import Unit, UnitState, check_unit_name
+from reconciler.base.errors import ServiceError
+from reconciler.base.unit import Unit, UnitState, check_unit_name
 
 FIRST_PID = 4000
 OUTSIDE_START_LIMIT = 5  # a unit created outside lpam: the managers' usual start limit

@@ -55,10 +55,10 @@ from reconciler.adapters.services.supervisor_daemon import (
     ensure,
     shutdown,
 )
-from reconciler.atomic import fsync_dir, write_atomic
-from reconciler.errors import ServiceError
-from reconciler.layout import Layout
-from reconciler.unit import Activity, Unit, UnitState, check_unit_name
+from reconciler.base.atomic import fsync_dir, write_atomic
+from reconciler.base.errors import ServiceError
+from reconciler.base.layout import Layout
+from reconciler.base.unit import Activity, Unit, UnitState, check_unit_name
 
 __all__ = ["SupervisorServices", "check_user", "shutdown", "tail"]
 

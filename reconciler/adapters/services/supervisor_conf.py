@@ -28,9 +28,9 @@ import re
 import string
 from pathlib import Path
 
-from reconciler.errors import ServiceError
-from reconciler.text import printable
-from reconciler.unit import Unit
+from reconciler.base.errors import ServiceError
+from reconciler.base.text import printable
+from reconciler.base.unit import Unit
 
 HERE = "%(here)s"
 LOG_MAX_BYTES = "10MB"  # per app, with LOG_BACKUPS old files: bounded on a Pi's SD card

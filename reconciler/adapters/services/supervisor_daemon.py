@@ -34,12 +34,12 @@ from supervisor.xmlrpc import Faults, SupervisorTransport  # type: ignore[import
 
 from reconciler.adapters.scripts import PASSED_THROUGH
 from reconciler.adapters.services import orphans, supervisor_conf
-from reconciler.atomic import write_atomic
-from reconciler.errors import ServiceError
-from reconciler.execution.ports import DEFAULT_PATH
-from reconciler.flock import wait_exclusive
-from reconciler.layout import Layout
-from reconciler.process import alive
+from reconciler.base.atomic import write_atomic
+from reconciler.base.errors import ServiceError
+from reconciler.base.flock import wait_exclusive
+from reconciler.base.layout import Layout
+from reconciler.base.process import alive
+from reconciler.engine.execution.ports import DEFAULT_PATH
 
 CALL_TIMEOUT = 10.0  # an answer to a question; starting and stopping get their own bound
 LAUNCH_TIMEOUT = 10.0  # from launching supervisord to its first answer

@@ -31,13 +31,13 @@ import tempfile
 from pathlib import Path
 
 from reconciler.adapters.services.unitfile import HEADER, render_unit
-from reconciler.atomic import fsync_dir, write_atomic
-from reconciler.errors import ServiceError, shorten
-from reconciler.execution.ports import DEFAULT_PATH
-from reconciler.layout import Layout
-from reconciler.observe.unit_state import SHOW_PROPERTIES, parse_properties, parse_show
-from reconciler.reading import MIB, read_bounded
-from reconciler.unit import Unit, UnitState, check_unit_name
+from reconciler.base.atomic import fsync_dir, write_atomic
+from reconciler.base.errors import ServiceError, shorten
+from reconciler.base.layout import Layout
+from reconciler.base.reading import MIB, read_bounded
+from reconciler.base.unit import Unit, UnitState, check_unit_name
+from reconciler.engine.execution.ports import DEFAULT_PATH
+from reconciler.engine.observe.unit_state import SHOW_PROPERTIES, parse_properties, parse_show
 
 ACT_TIMEOUT = 90.0  # start, stop, restart, (dis|en)able, daemon-reload: systemd waits for jobs
 QUERY_TIMEOUT = 15.0  # show

@@ -1,0 +1,316 @@
+"""Documents from disk to validated models, with every fault at file:line:column.
+
+load → migrate → validate: the path every desired state, catalog and saved plan takes.
+Pydantic's error locations are mapped back onto the YAML tree kept by loading.py.
+"""
+
+from __future__ import annotations
+
+import json
+import weakref
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any, Protocol, TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+from reconciler.base.errors import ConfigError
+from reconciler.base.loading import Document, load
+from schemas.agent import AgentConfig
+from schemas.catalog import Catalog, CatalogFault, RawCatalog, normalise
+from schemas.desired import DesiredState
+from schemas.kinds import DocumentKind
+from schemas.plan import Plan
+
+M = TypeVar("M", bound=BaseModel)
+
+
+class _Places(Protocol):
+    """What places a fault: a parsed document, or a version-1 one seen as the current."""
+
+    def position(self, loc: Iterable[str | int]) -> tuple[int, int]: ...
+
+    def error(self, message: str, loc: Iterable[str | int] = (),
+              hint: str | None = None) -> ConfigError: ...
+
+
+_HINTS = {
+    "extra_forbidden": "remove it, or check its spelling against desired-state.example.yaml",
+    "missing": "add it",
+    "string_type": "quote the value to make it a string",
+    "literal_error": "use one of the values shown",
+}
+
+_EXAMPLES = {"agent configuration": "the README's agent.yaml (A fleet that follows git)",
+             "catalog": "the README's libpanda-apps.yaml (Apps are services)"}
+"""Where a misspelt key's right spelling is shown, for documents other than a desired state."""
+
+
+def validation_error(doc: _Places, exc: ValidationError, what: str) -> ConfigError:
+    """The first pydantic complaint as a ConfigError at the offending node."""
+    error = exc.errors()[0]
+    loc = [p for p in error["loc"] if not (isinstance(p, str) and "[" in p)]
+    # Pydantic inserts union-member names ('str', 'function-after[…]') into locations.
+    loc = [p for p in loc if not (isinstance(p, str) and p in {"str", "dict", "list"})]
+    if isinstance(doc, _V1Places):
+        loc = doc.written(loc)
+    field = ".".join(str(p) for p in loc) or what
+    message = str(error["msg"]).removeprefix("Value error, ")
+    if error["type"] == "extra_forbidden":
+        message = f"unknown key {loc[-1]!r}" if loc else "unknown key"
+    elif error["type"] == "missing":
+        message = f"{field} is required"
+    else:
+        message = f"{field}: {message}"
+    hint = _HINTS.get(error["type"])
+    if error["type"] == "extra_forbidden" and what in _EXAMPLES:
+        hint = f"remove it, or check its spelling against {_EXAMPLES[what]}"
+    return doc.error(message, loc, hint)
+
+
+def _validate(doc: _Places, data: Any, model: type[BaseModel], what: str) -> Any:
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise validation_error(doc, exc, what) from None
+
+
+def load_desired(path: Path) -> DesiredState:
+    """A desired-state file of any supported version, as the current model."""
+    return desired_from(load(path))
+
+
+def desired_from(doc: Document) -> DesiredState:
+    """The desired state in a document already parsed (parsing is the costly part: a large
+    document is parsed once, whoever looks at it first).
+
+    A file of version 1 says `app:` where the current model says `apps: [ … ]`: its
+    faults are placed by `_V1Places`, at the line and column of the file as written."""
+    from migrations import upgrade
+
+    data = upgrade(DocumentKind.DESIRED_STATE, doc.data, path=doc.path, position=doc.position)
+    current = str(_mapping(doc.data).get("version")).strip() == str(data["version"])
+    placed: _Places = doc if current else _V1Places(doc)
+    if placed is doc and "app" in _mapping(doc.data):
+        raise doc.error("unknown key 'app': version 2 lists apps under `apps:`", ["app"],
+                        "write `apps: [NAME]`, or `version: 1` to keep `app:`")
+    _check_duplicate_repositories(placed, data)
+    _check_duplicate_apps(placed, data)
+    state: DesiredState = _validate(placed, data, DesiredState, "desired state")
+    _APP_PLACES[id(state)] = (doc.path, [placed.position(["apps", i])
+                                         for i in range(len(state.apps))])
+    weakref.finalize(state, _APP_PLACES.pop, id(state), None)
+    return state
+
+
+def _mapping(data: Any) -> dict[Any, Any]:
+    return data if isinstance(data, dict) else {}
+
+
+class _V1Places:
+    """A version-1 document seen through the current model's locations: `apps.0.…` is
+    `app.…` in the file (the migration put the one app first), so a fault in the app is
+    reported where the user wrote it (the tests of version-1 files are the check)."""
+
+    def __init__(self, doc: Document) -> None:
+        self.path, self._doc = doc.path, doc
+
+    @staticmethod
+    def written(loc: Iterable[str | int]) -> list[str | int]:
+        """`loc` of the current model as the version-1 file writes it."""
+        parts = list(loc)
+        return ["app", *parts[2:]] if parts[:1] == ["apps"] else parts
+
+    def position(self, loc: Iterable[str | int]) -> tuple[int, int]:
+        return self._doc.position(self.written(loc))
+
+    def error(self, message: str, loc: Iterable[str | int] = (),
+              hint: str | None = None) -> ConfigError:
+        line, column = self.position(loc)
+        return ConfigError(message, path=self.path, line=line, column=column, hint=hint)
+
+
+_APP_PLACES: dict[int, tuple[Path, list[tuple[int, int]]]] = {}
+"""id(desired state) → its file and each app's (line, column), while the model lives: the
+model holds no positions (it is compared and fingerprinted by content), yet planning's
+refusal of several apps names the second app's place."""
+
+
+def app_place(desired: DesiredState, index: int) -> tuple[Path | None, int | None, int | None]:
+    """The file, line and column of `desired.apps[index]` as loaded (None: not loaded from
+    a document, e.g. a model built or copied in code)."""
+    found = _APP_PLACES.get(id(desired))
+    if found is None or index >= len(found[1]):
+        return None, None, None
+    path, places = found
+    return (path, *places[index])
+
+
+def _check_duplicate_apps(doc: _Places, data: dict[str, Any]) -> None:
+    """An app named twice, refused at its second entry (the model refuses it too, but
+    without a place)."""
+    from schemas.desired import duplicate_app
+
+    apps = data.get("apps")
+    seen: dict[str, int] = {}
+    for index, item in enumerate(apps if isinstance(apps, list) else []):
+        name = item.get("name") if isinstance(item, dict) else item
+        if not isinstance(name, str):
+            continue
+        if name in seen:
+            raise doc.error(duplicate_app(name, seen[name]), ["apps", index],
+                            "remove one of the two entries")
+        seen[name] = index
+
+
+def _check_duplicate_repositories(doc: _Places, data: dict[str, Any]) -> None:
+    seen: dict[str, int] = {}
+    repos = data.get("repositories")
+    if not isinstance(repos, list):
+        return
+    for index, item in enumerate(repos):
+        if not isinstance(item, dict):
+            continue
+        name = item.get("repo") or item.get("url")
+        if not isinstance(name, str):
+            continue
+        name = name.removesuffix("/").removesuffix(".git")
+        if name in seen:
+            raise doc.error(
+                f"repository {name} is listed twice (first as item {seen[name] + 1})",
+                ["repositories", index],
+                "list each repository once; remove one of the two entries",
+            )
+        seen[name] = index
+
+
+def load_agent(path: Path) -> AgentConfig:
+    """The agent's configuration (`etc/lpam/agent.yaml`), version-checked and validated."""
+    if not path.exists():
+        raise ConfigError("file not found", path=path,
+                          hint="write it (README: A fleet that follows git), or pass "
+                          "--config FILE")
+    return agent_from(load(path))
+
+
+def agent_from(doc: Document) -> AgentConfig:
+    """The agent's configuration in a document already parsed."""
+    from migrations import upgrade
+
+    data = upgrade(DocumentKind.AGENT_CONFIG, doc.data, path=doc.path, position=doc.position)
+    config: AgentConfig = _validate(doc, data, AgentConfig, "agent configuration")
+    return config
+
+
+def parse_catalog(path: Path, text: str) -> Catalog:
+    """An app catalog (`libpanda-apps.yaml`), either wild shape, normalised."""
+    return catalog_from(load(path, text))
+
+
+def catalog_from(doc: Document) -> Catalog:
+    """The app catalog in a document already parsed."""
+    if not isinstance(doc.data, dict):
+        raise doc.error("an app catalog is a mapping with an `apps:` list", [],
+                        "see reference/libpanda-default-apps.libpanda-apps.yaml")
+    raw: RawCatalog = _validate(doc, doc.data, RawCatalog, "catalog")
+    try:
+        return normalise(raw)
+    except CatalogFault as exc:
+        raise doc.error(str(exc), list(exc.loc)) from None
+
+
+def parse_json(
+    kind: DocumentKind, text: str, path: Path, model: type[M], *, hint: str,
+    version_key: str = "version",
+) -> M:
+    """A JSON document lpam wrote itself (plan, state record): parse, migrate, validate.
+
+    A fault names its line and column like a YAML document's: JSON is YAML, so the text is
+    parsed again for positions, but only once a fault needs them (a large plan is parsed
+    once, by `json`, when it is sound).
+    """
+    from migrations import upgrade
+
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"not a valid {kind}: {exc.msg}", path=path, line=exc.lineno,
+                          column=exc.colno, hint=hint) from None
+    except RecursionError:
+        raise ConfigError(f"not a valid {kind}: nested too deeply", path=path, line=1,
+                          column=1, hint=hint) from None
+    where = _JsonPositions(path, text, version_key)
+    if isinstance(data, dict) and version_key != "version" and version_key in data:
+        data["version"] = data.pop(version_key)
+    data = upgrade(kind, data, path=path, position=where)
+    if version_key != "version":
+        data[version_key] = data.pop("version")
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        loc, message = _tagged(data, list(error["loc"])), str(error["msg"])
+        if error["type"] == "union_tag_invalid":  # pydantic lists the tags as reprs
+            loc, message = [*loc, "kind"], f"unknown kind {error['ctx']['tag']!r}"
+        field = ".".join(str(p) for p in loc)
+        line, column = where(loc)
+        raise ConfigError(f"invalid {kind} at {field}: {message}", path=path,
+                          line=line, column=column, hint=hint) from None
+
+
+def _tagged(data: Any, loc: list[str | int]) -> list[str | int]:
+    """`loc` without the tags pydantic inserts for a union chosen by `kind` (a plan's
+    steps: `steps.0.install.app` is `steps.0.app` in the document)."""
+    kept: list[str | int] = []
+    node = data
+    for part in loc:
+        if isinstance(node, dict) and part not in node and node.get("kind") == part:
+            continue
+        kept.append(part)
+        node = node.get(part) if isinstance(node, dict) else (
+            node[part] if isinstance(node, list) and isinstance(part, int)
+            and 0 <= part < len(node) else None)
+    return kept
+
+
+class _JsonPositions:
+    """1-based (line, column) of a location in a JSON text, parsed as YAML on first use.
+    A text the YAML reader refuses (a plan of more values than a YAML document may hold)
+    has no positions: its faults name the field only."""
+
+    def __init__(self, path: Path, text: str, version_key: str) -> None:
+        self._path, self._text, self._version_key = path, text, version_key
+        self._doc: Document | None = None
+        self._failed = False
+
+    def __call__(self, loc: Sequence[str | int]) -> tuple[int, int] | tuple[None, None]:
+        if self._doc is None and not self._failed:
+            try:
+                self._doc = load(self._path, self._text)
+            except ConfigError:
+                self._failed = True
+        if self._doc is None:
+            return None, None
+        # `version` is the migrations' name of the plan's `format_version`
+        loc = [self._version_key if part == "version" else part for part in loc]
+        return self._doc.position([p for p in loc if isinstance(p, (str, int))])
+
+
+def load_plan(path: Path) -> Plan:
+    """A saved plan file (`lpam plan --out`), version-checked, validated and its seal
+    checked — all before any lock is taken: a step of an unknown kind, a missing or
+    mistyped field, or a plan edited after it was sealed is refused here, at its line
+    and column, not when the step runs. (A version-1 plan's seal is checked on its
+    version-1 body by its migration, migrations/plan_v1_to_v2.py.)"""
+    from reconciler.base.loading import read_text
+    from schemas.plan import fingerprint
+
+    text = read_text(path)
+    hint = "pass a file written by `lpam plan --out FILE`, or use -f for a desired state"
+    plan = parse_json(DocumentKind.PLAN, text, path, Plan, version_key="format_version", hint=hint)
+    if plan.fingerprint != fingerprint(plan):
+        line, column = _JsonPositions(path, text, "format_version")(["fingerprint"])
+        raise ConfigError("the plan's fingerprint does not match its steps (edited or "
+                          "corrupt)", path=path, line=line, column=column,
+                          hint="make a new plan with `lpam plan --out FILE`")
+    return plan

@@ -1,0 +1,116 @@
+"""Assemble, seal and check a plan: the only input `apply` executes.
+
+The fingerprint (schemas/plan.py, where the loader checks it too) covers what drives
+behaviour (the record it was made against and the steps), never display text, so a
+reworded reason does not invalidate a plan while an edited step does.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from reconciler.base.errors import PlanError, StalePlanError
+from reconciler.core.planning.diff import diff
+from reconciler.core.planning.graph import steps_for
+from reconciler.core.planning.model import UNKNOWN, Observed, Targets
+from schemas.generation import AppGeneration, StrayGeneration
+from schemas.plan import Action, BuildStep, Change, CheckoutStep, Plan, Step, fingerprint
+from schemas.record import StateRecord
+
+__all__ = ["check_plan", "fingerprint", "make_plan", "sealed", "unknown_values"]
+
+
+def make_plan(
+    targets: Targets, observed: Observed, *, now: datetime, lpam_version: str,
+    offline: bool = False, hold: str | None = None,
+) -> Plan:
+    """`hold`: a rollback holds the machine (the reason); the plan proposes nothing."""
+    if hold is not None:
+        changes = [Change(address="app", action=Action.NOOP, reason=hold, warnings=[hold])]
+        steps = []
+    else:
+        changes = diff(targets, observed)
+        steps = steps_for(changes, targets, observed)
+    counts = {a: sum(1 for c in changes if c.action is a) for a in Action}
+    summary = (
+        f"Plan: {counts[Action.CREATE]} to add, {counts[Action.UPDATE]} to change, "
+        f"{counts[Action.REPLACE]} to replace, {counts[Action.DELETE]} to destroy."
+        if any(c.action is not Action.NOOP for c in changes)
+        else "No changes. The machine matches the desired state."
+    )
+    plan = Plan(
+        lpam_version=lpam_version,
+        created_at=now.isoformat(timespec="seconds"),
+        lineage=observed.record.lineage,
+        serial=observed.record.serial,
+        changes=changes,
+        steps=steps,
+        summary=summary,
+        offline=offline,
+    )
+    return plan.model_copy(update={"fingerprint": fingerprint(plan)})
+
+
+def sealed(record: StateRecord, changes: list[Change], steps: list[Step], *, now: datetime,
+           lpam_version: str, summary: str) -> Plan:
+    """A plan of given steps against `record` (an operator's command, a rollback that is
+    finished), sealed like any other."""
+    plan = Plan(lpam_version=lpam_version, created_at=now.isoformat(timespec="seconds"),
+                lineage=record.lineage, serial=record.serial, changes=changes, steps=steps,
+                summary=summary)
+    return plan.model_copy(update={"fingerprint": fingerprint(plan)})
+
+_MUST_KNOW = ("repository", "commit", "path", "tree", "generation")
+
+
+def _must_know(step: Step) -> dict[str, object]:
+    """The values of `step` a plan must know to run (named as version 1 named them)."""
+    values: dict[str, object] = {}
+    if isinstance(step, (CheckoutStep, BuildStep)):
+        values = step.model_dump(include={"commit", "build", "ros"})
+    target = getattr(step, "target", None) or getattr(step, "app", None)
+    if isinstance(target, StrayGeneration):
+        values["generation"] = target.generation
+    elif isinstance(target, AppGeneration):
+        values.update({name: getattr(target, name) for name in _MUST_KNOW})
+        if target.ros or target.ros_build is not None:
+            values.update(build=target.ros_build, ros=target.ros)
+    return values
+
+
+def unknown_values(plan: Plan) -> list[str]:
+    """`step.arg` for every value a plan must know to run but does not."""
+    return [
+        f"{step.id}.{name}"
+        for step in plan.steps
+        for name, value in _must_know(step).items()
+        if value is None or UNKNOWN in str(value)
+    ]
+
+
+def check_plan(plan: Plan, *, lineage: str | None, serial: int, source: str) -> None:
+    """Refuse a plan that was edited, or made against another state than the current one."""
+    if plan.fingerprint != fingerprint(plan):
+        raise PlanError(
+            f"{source}: the plan's fingerprint does not match its steps (edited or corrupt)",
+            hint="make a new plan with `lpam plan --out FILE`",
+        )
+    unknown = unknown_values(plan)
+    if plan.offline or unknown:
+        raise PlanError(
+            f"{source}: the plan was made offline or holds values still unknown "
+            f"({', '.join(unknown) or 'offline'}); it cannot be applied",
+            hint="make an exact plan with `lpam plan --out FILE` (with network)",
+        )
+    if plan.lineage is not None and plan.lineage != lineage:
+        raise StalePlanError(
+            f"{source} was made for another machine state (lineage {plan.lineage}, "
+            f"this machine has {lineage})",
+            hint="make a new plan with `lpam plan --out FILE` on this machine",
+        )
+    if plan.serial != serial:
+        raise StalePlanError(
+            f"{source} is stale: the state changed since it was made "
+            f"(serial {plan.serial}, now {serial})",
+            hint="review a fresh plan with `lpam plan --out FILE`, then apply that",
+        )

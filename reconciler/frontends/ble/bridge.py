@@ -1,0 +1,150 @@
+"""Between the GATT server's event loop and lpam's workflow: the phone's writes are read
+at once, the work they ask for runs on one worker thread, one request at a time.
+
+Why a worker: an apply takes minutes (a catkin build, a pip install), and the phone shows
+the car as disconnected after 20 s without a temperature notification. The GATT loop
+therefore never waits on lpam: `write` only parses and queues (a full queue is an error
+text, not a wait), and the worker sends what a request produced through the server's
+thread-safe notify. Requests run in the order they came, from any phone; each phone has its
+own input buffer (privzone.framing.Inbox), so two phones' chunks never mix.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Union
+
+from reconciler.adapters.bluez.shape import Characteristic
+from reconciler.core.privzone import messages as m
+from reconciler.core.privzone.framing import Delivery, Inbox, encode_status
+from reconciler.frontends.ble import answers
+from reconciler.frontends.ble.temperature import Thermometer
+from reconciler.workflow.events import Event, Report
+from reconciler.workflow.machine import Machine
+
+QUEUED = 4
+"""Requests that may wait behind the one running; more are refused with a text."""
+
+BUSY = f"Busy: {QUEUED} requests are waiting; try again when they are done"
+
+PACE = 0.05
+"""Seconds between two notifications of one message (the phone reads them in order)."""
+
+Send = Callable[[Characteristic, bytes], None]
+Work = Union[m.Command, m.Request]
+
+
+@dataclass(frozen=True)
+class _Job:
+    work: Work
+    device: str | None
+
+
+class Bridge:
+    """The GATT handler (adapters/bluez GattHandler) of `lpam ble`."""
+
+    def __init__(self, machine: Machine, send: Send, *, thermometer: Thermometer,
+                 log: Callable[[str], None], bug: Callable[[], str]) -> None:
+        """`send` notifies a characteristic from any thread; `log` writes a line of the
+        service's log; `bug` records the traceback of an unexpected error and says where."""
+        self._machine, self._send, self._log, self._bug = machine, send, log, bug
+        self.thermometer = thermometer
+        self._inbox = Inbox()
+        self._jobs: queue.Queue[_Job | None] = queue.Queue(maxsize=QUEUED)
+        self._last: dict[Characteristic, bytes] = {}
+        self._command = b""
+        self._worker = threading.Thread(target=self._work, name="lpam-ble-worker",
+                                        daemon=True)
+        self._worker.start()
+
+    # -- what the GATT server calls (on its loop: never blocks) -------------------------
+
+    def read(self, char: Characteristic, device: str | None) -> bytes:
+        if char is Characteristic.TEMPERATURE:
+            return self.thermometer.reading().encode("utf-8")
+        if char is Characteristic.UNIT:
+            return b"F" if self.thermometer.fahrenheit else b"C"
+        if char in (Characteristic.COMMAND, Characteristic.CONFIG):
+            return self._command
+        return self._last.get(char, b"")
+
+    def write(self, char: Characteristic, value: bytes, device: str | None) -> None:
+        if char is Characteristic.UNIT:
+            self.thermometer.set_unit(value)
+        elif char in (Characteristic.COMMAND, Characteristic.CONFIG):
+            self._command = value[:64]
+            self._parsed(lambda: m.parse_command(value), device)
+        elif char is Characteristic.INPUT:
+            done = self._inbox.feed(device, value)
+            if isinstance(done, Delivery):
+                self._parsed(lambda: m.parse_input(done.body), device)
+            elif done is not None:
+                self.status(done.text)
+
+    def subscribed(self, char: Characteristic, on: bool) -> None:
+        if char is Characteristic.STATUS and on:
+            self.status(m.Status.HELLO)
+
+    # -- the rest -----------------------------------------------------------------------
+
+    def status(self, text: str) -> None:
+        """A status text to the phone (and what a read of the status returns)."""
+        self._log(f"status: {text}")
+        self._notify(Characteristic.STATUS, encode_status(text))
+
+    def stop(self, timeout: float) -> bool:
+        """Let the request running finish (at most `timeout` s); True if it did."""
+        with contextlib.suppress(queue.Full):
+            self._jobs.put_nowait(None)
+        self._worker.join(timeout)
+        return not self._worker.is_alive()
+
+    def _parsed(self, parse: Callable[[], Work], device: str | None) -> None:
+        try:
+            work = parse()
+        except m.ProtocolError as exc:
+            self.status(exc.text)
+            return
+        try:
+            self._jobs.put_nowait(_Job(work, device))
+        except queue.Full:
+            self.status(BUSY)
+
+    def _notify(self, char: Characteristic, value: bytes) -> None:
+        self._last[char] = value
+        self._send(char, value)
+
+    def _work(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            self._log(f"request from {job.device or 'a phone'}: {job.work!r}")
+            try:
+                answer = self._answer(job.work)
+            except Exception as exc:  # a bug must not end the service: said, and logged
+                self._log(f"internal error on {job.work!r}: {exc!r}; details in {self._bug()}")
+                answer = answers.Answer(status=f"Internal error in lpam ({type(exc).__name__}); "
+                                        "details in its debug log")
+            for index, chunk in enumerate(answer.output):
+                if index:
+                    time.sleep(PACE)
+                self._notify(Characteristic.OUTPUT, chunk)
+            if answer.status is not None:
+                self.status(answer.status)
+
+    def _answer(self, work: Work) -> answers.Answer:
+        report: Report = self._report
+        if isinstance(work, m.Command):
+            return answers.command(self._machine, work, report)
+        return answers.request(self._machine, work, report)
+
+    def _report(self, event: Event) -> None:
+        text = getattr(event, "text", None) or getattr(event, "line", None)
+        if text:
+            self._log(f"  {text}")

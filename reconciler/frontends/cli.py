@@ -1,0 +1,680 @@
+"""`lpam`: the only place that prints and exits.
+
+Maps every LpamError to one short message (file:line:column for documents) and exit 1;
+anything unexpected is a bug: its traceback goes to `<root>/var/log/lpam/debug.log`, and
+the user gets one line pointing there. Heavy libraries (dulwich, networkx) are imported
+only by the commands that need them, so `lpam --version` and `lpam status` start fast.
+
+Each `cmd_*` parses nothing itself: it takes the parsed arguments, calls one use case of
+reconciler/workflow (where every rule lives: locks, gates, holds, defaults), renders what
+it returns and reports, and returns the exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import gc
+import json
+import os
+import signal
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from reconciler import __version__
+from reconciler.base.errors import LpamError, Terminated
+from reconciler.base.layout import KEEP_GENERATIONS, Layout
+from reconciler.base.text import printable
+from reconciler.frontends.console import Terminal, debug_log, now, terminate
+from reconciler.workflow.defaults import SCRIPT_TIMEOUT
+
+if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
+    from reconciler.workflow.applying import ApplyOptions
+    from reconciler.workflow.events import Event
+    from reconciler.workflow.machine import Machine
+    from schemas.plan import Plan
+    from schemas.record import HistoryEntry
+
+EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
+VALIDATE_KINDS = ("desired-state", "catalog", "repository", "agent", "plan")
+"""The values of reconciler.workflow.validation.Kind, spelled out: the parser is built before any
+command runs, and `lpam --version` must not import the schemas."""
+OPERATOR_ACTIONS = (
+    ("start", "start the installed apps (or APP) now (ends an operator stop)"),
+    ("stop", "stop the installed apps (or APP); each stays stopped until `lpam start` or a "
+     "change of the desired state"),
+    ("restart", "stop and start the installed apps (or APP)"),
+)
+"""schemas.operator.OperatorAction's values (spelled out for the same reason), each with
+its help."""
+
+
+def _at_least_one(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError("keep at least 1 (the installed generation)")
+    return value
+
+
+Option = tuple[tuple[str, ...], dict[str, Any]]
+OPTIONS: dict[str, Option] = {
+    "file": (("-f", "--file"), {"type": Path, "help": "desired state (default: under --root)"}),
+    "json": (("--json",), {"action": "store_true"}),
+    "yes": (("--yes",), {"action": "store_true"}),
+    "config": (("--config",), {"type": Path, "help": "agent.yaml (default: under --root)"}),
+    "lock-timeout": (("--lock-timeout",), {
+        "type": float, "default": None, "metavar": "SECONDS",
+        "help": "wait this long for a running apply to finish (default 10)"}),
+    "script-timeout": (("--script-timeout",), {
+        "type": float, "default": SCRIPT_TIMEOUT, "metavar": "SECONDS",
+        "help": "kill an app script running longer than this (default 600)"}),
+    "network-timeout": (("--network-timeout",), {
+        "type": float, "default": 60.0, "metavar": "SECONDS",
+        "help": "give up on a git server that does not answer for this long (default 60)"}),
+    "services": (("--services",), {
+        "choices": ("systemd", "supervisor"), "default": None,
+        "help": "service manager that runs the app (default: $LPAM_SERVICES, else systemd "
+        "where it runs, else supervisord)"}),
+    "keep-generations": (("--keep-generations",), {
+        "type": _at_least_one, "default": KEEP_GENERATIONS, "metavar": "N",
+        "help": "good generations kept on disk for `lpam rollback` "
+        f"(default {KEEP_GENERATIONS})"}),
+    "wait": (("--wait",), {
+        "type": float, "default": 0.0, "metavar": "SECONDS",
+        "help": "wait up to SECONDS for closed update gates to open before the cutover; "
+        "still closed: exit 75, deferred (default 0)"}),
+    "force": (("--force",), {
+        "action": "store_true", "help": "ignore the update gates (the vehicle may be moving)"}),
+}
+"""Every option more than one command takes, declared once. `--lock-timeout` defaults to
+None: each use case knows how long its lock waits (reconciler/workflow/defaults.py)."""
+
+New = Callable[[str, str], argparse.ArgumentParser]
+
+
+def _parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument(
+        "--root", default=argparse.SUPPRESS,
+        help="put every path lpam touches under ROOT (default: $LPAM_ROOT or /)",
+    )
+    parser = argparse.ArgumentParser(
+        prog="lpam", parents=[common],
+        description="Make this vehicle's apps match a declared desired state.",
+    )
+    parser.add_argument("--version", action="version", version=f"lpam {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def new(name: str, what: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=[common], help=what)
+
+    for declare in (_plan_apply, _status_operate, _logs_history_rollback, _sync_agent,
+                    _gates_install_bundle, _fleet_pin_services, _validate_import):
+        declare(new)
+    return parser
+
+
+def _add(parser: argparse.ArgumentParser, *names: str, **override: Any) -> None:
+    """The shared options `names`, in the order `--help` shows them; `override` changes
+    fields (`help=`, `default=`) of each of them."""
+    for name in names:
+        flags, options = OPTIONS[name]
+        parser.add_argument(*flags, **{**options, **override})
+
+
+def _plan_apply(new: New) -> None:
+    plan = new("plan", "show what apply would change")
+    _add(plan, "file")
+    _add(plan, "json", help="print the plan as JSON")
+    plan.add_argument("-o", "--out", type=Path, help="save the plan for `lpam apply PLANFILE`")
+    plan.add_argument("--detailed-exitcode", action="store_true",
+                      help="exit 0 without changes, 2 with changes, 1 on error")
+    plan.add_argument("--offline", action="store_true",
+                      help="use no network: plan from what the last fetch brought")
+    _add(plan, "lock-timeout", "network-timeout", "services")
+
+    apply = new("apply", "make the machine match")
+    apply.add_argument("planfile", nargs="?", type=Path, help="a plan saved by plan --out")
+    _add(apply, "file")
+    _add(apply, "yes", help="apply without asking")
+    _add(apply, "lock-timeout", "script-timeout", "network-timeout", "services",
+         "keep-generations")
+    apply.add_argument("--release", action="store_true",
+                       help="end a rollback's hold (and a local override of the fleet's "
+                       "file) and apply the desired state again")
+    _add(apply, "wait")
+
+
+def _status_operate(new: New) -> None:
+    _add(new("status", "show repositories and apps"), "json", "services")
+    for action, what in OPERATOR_ACTIONS:
+        operate = new(action, what)
+        operate.add_argument("app", nargs="?", metavar="APP",
+                             help="that installed app only (default: every installed app)")
+        _add(operate, "file", help="desired state whose update gates apply (default: under "
+             "--root)")
+        _add(operate, "wait", "force", "lock-timeout", "services", "script-timeout")
+
+
+def _logs_history_rollback(new: New) -> None:
+    logs = new("logs", "the installed apps' recent output")
+    logs.add_argument("app", nargs="?", metavar="APP",
+                      help="that installed app only (default: every installed app, each "
+                      "line prefixed with its name when there are several)")
+    logs.add_argument("-n", "--lines", type=int, default=50, help="how many lines (default 50)")
+    logs.add_argument("-f", "--follow", action="store_true", help="keep printing new output")
+    _add(logs, "services")
+
+    _add(new("history", "the generations made current, newest last"), "json")
+
+    rollback = new("rollback", "make the previous good generation current again, offline")
+    _add(rollback, "file",
+         help="desired state the rollback holds against (default: under --root)")
+    _add(rollback, "yes", help="roll back without asking")
+    _add(rollback, "wait", "force", "lock-timeout", "services", "script-timeout")
+
+
+def _sync_agent(new: New) -> None:
+    sync = new("sync", "one pass of following the desired-state repository")
+    _add(sync, "config")
+    sync.add_argument("--fetch-only", action="store_true",
+                      help="fetch the source and what it pins, record, change nothing")
+    sync.add_argument("--bundle", type=Path, metavar="FILE",
+                      help="take the source and what it pins from a bundle: no network")
+    _add(sync, "lock-timeout", "network-timeout", "services", "script-timeout",
+         "keep-generations")
+    _add(sync, "wait", default=None, help="wait up to SECONDS for closed update gates "
+         "(default: agent.yaml's gate_wait_seconds)")
+
+    agent = new("agent", "follow the desired-state repository: sync passes forever")
+    _add(agent, "config")
+    agent.add_argument("--once", action="store_true", help="one pass, then exit with its code")
+    _add(agent, "network-timeout", "services", "script-timeout", "lock-timeout")
+
+    ble = new("ble", "serve the field's phone app (Privzone) over Bluetooth LE until stopped")
+    ble.add_argument("--adapter", default="/org/bluez/hci0",
+                     help="the BlueZ adapter's object path (default: /org/bluez/hci0)")
+    ble.add_argument("--bus", metavar="ADDRESS", help="the system D-Bus's address (default: "
+                     "$DBUS_SYSTEM_BUS_ADDRESS, else the system's)")
+    _add(ble, "network-timeout", "services")
+
+
+def _gates_install_bundle(new: New) -> None:
+    gates = new("gates", "the update gates now: speed, locks, time window")
+    _add(gates, "file", "json")
+
+    _add(new("install-agent", "install the systemd units that run the agent on this car"),
+         "config", "services")
+    _add(new("install-ble", "install the systemd unit that runs `lpam ble` on this car "
+             "(it replaces bluezone's unit)"), "services")
+
+    bundle = new("bundle", "offline bundles of the desired state and what it pins")
+    bundle.add_argument("action", choices=("create",))
+    bundle.add_argument("out", type=Path, help="the bundle file to write")
+    bundle.add_argument("--source", help="desired-state repository (default: agent.yaml's)")
+    bundle.add_argument("--branch", help="its branch (default: agent.yaml's, else main)")
+    _add(bundle, "network-timeout")
+
+
+def _fleet_pin_services(new: New) -> None:
+    fleet = new("fleet", "the fleet's status, read from a clone of its repository")
+    fleet.add_argument("action", choices=("status",))
+    fleet.add_argument("--repo", type=Path, default=Path("."),
+                       help="a clone of the desired-state repository (default: here)")
+    fleet.add_argument("--branch", default="main", help="the branch the cars follow")
+    _add(fleet, "json")
+
+    pin = new("pin", "pin every branch or tag of a desired state to its commit now")
+    pin.add_argument("file", nargs="?", type=Path, help="desired state (default: under --root)")
+    pin.add_argument("--catalogs", action="store_true",
+                     help="also report the ROS repositories of the app it names")
+    pin.add_argument("--dry-run", action="store_true", help="say what would change only")
+    _add(pin, "network-timeout")
+    _add(pin, "lock-timeout", help="wait this long for a running apply to finish (default 60)")
+
+    services = new("services", "the service manager lpam started (supervisord)")
+    services.add_argument("action", choices=("shutdown",),
+                          help="shutdown: stop the supervisord lpam started for this root")
+
+
+def _validate_import(new: New) -> None:
+    validate = new("validate", "check any document lpam reads, by the kind its keys show")
+    validate.add_argument("path", type=Path)
+    validate.add_argument("--kind", choices=VALIDATE_KINDS,
+                          help="read PATH as this kind instead of deciding from its keys")
+
+    imp = new("import-lpam", "write a desired state equivalent to an LPAM installation")
+    imp.add_argument("etc_dir", nargs="?", type=Path,
+                     help="LPAM's folder (default: <root>/etc/libpanda.d)")
+    imp.add_argument("-o", "--output", type=Path, help="write here instead of printing")
+
+
+def _layout(args: argparse.Namespace) -> Layout:
+    root = getattr(args, "root", None) or os.environ.get("LPAM_ROOT") or "/"
+    return Layout(Path(root).resolve())
+
+
+def entry() -> int:
+    """The `lpam` process. It is short-lived and allocates little after its imports, so
+    cyclic GC passes over pydantic's and dulwich's import-time objects only cost time, at
+    start and again at exit (measured in docs/benchmarks.md): they are switched off."""
+    gc.disable()
+    try:
+        return main()
+    except KeyboardInterrupt:  # before a command began (parsing arguments): nothing ran
+        print("interrupted: nothing was changed", file=sys.stderr)
+        return 130
+    finally:
+        gc.freeze()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, terminate)
+    layout = _layout(args)
+    try:
+        return int(COMMANDS[args.command](args, layout))
+    except LpamError as exc:
+        print(exc.render(), file=sys.stderr)
+        return exc.exit_code
+    except BrokenPipeError:  # `lpam plan | head`: the reader left; nothing more to say
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
+    except (KeyboardInterrupt, Terminated) as exc:
+        if args.command in CHANGES_THE_CAR:
+            print("interrupted: lpam recorded where it stood (a script under way is stopped "
+                  f"with its whole process group); run `{again(args)}` to resume",
+                  file=sys.stderr)
+        else:
+            print("interrupted: nothing was changed", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    except Exception:  # a bug: keep the traceback away from the user, but keep it
+        log = debug_log(layout)
+        print(f"error: internal error in lpam {__version__}; details in {log}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+CHANGES_THE_CAR = ("apply", "sync", "agent", "start", "stop", "restart", "rollback")
+
+
+def again(args: argparse.Namespace) -> str:
+    """The command that goes on from where this one stopped, as the user would type it:
+    the same root and desired-state file (a saved plan is stale once part of it ran; a
+    rollback's -f names only the gates' file, and the apply that finishes it holds to the
+    generation it returns to)."""
+    import shlex
+
+    from reconciler.workflow.operate import resumed_by
+
+    parts = ["lpam"]
+    root = getattr(args, "root", None)
+    if root:
+        parts += ["--root", str(root)]
+    parts.append(resumed_by(args.command))
+    if args.command in ("start", "stop", "restart") and getattr(args, "app", None):
+        parts.append(args.app)  # a stop of one app goes on with that app, no other
+    if args.command != "rollback" and getattr(args, "file", None) is not None:
+        parts += ["-f", str(args.file)]
+    if getattr(args, "config", None) is not None:
+        parts += ["--config", str(args.config)]
+    return shlex.join(parts)
+
+
+def _desired_path(args: argparse.Namespace, layout: Layout) -> Path:
+    return Path(args.file) if args.file else layout.desired_state
+
+
+def _machine(args: argparse.Namespace, layout: Layout) -> Machine:
+    from reconciler.workflow.machine import Machine
+
+    return Machine.at(layout, services=getattr(args, "services", None),
+                      network_timeout=getattr(args, "network_timeout", 60.0))
+
+
+def _options(args: argparse.Namespace, **more: Any) -> ApplyOptions:
+    """The run options a command was given (each use case supplies its own defaults)."""
+    from reconciler.workflow.applying import ApplyOptions
+
+    return ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
+                        resume=again(args), **more)
+
+
+def _ask(args: argparse.Namespace, question: str, *, what: str, verb: str) -> bool:
+    """`--yes`, else the operator typing `yes` at a terminal; no terminal is an error."""
+    if args.yes:
+        return True
+    if not sys.stdin.isatty():
+        raise LpamError(f"{what} needs confirmation",
+                        hint=f"pass --yes to {verb} without asking")
+    return input(question).strip() == "yes"
+
+
+def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.planning import plan_file
+
+    made = plan_file(_machine(args, layout), _desired_path(args, layout), report=Terminal(),
+                     offline=args.offline, out=args.out, lock_timeout=args.lock_timeout)
+    return _show_plan(args, made)
+
+
+def _show_plan(args: argparse.Namespace, plan: Plan) -> int:
+    from reconciler.core.planning.render import render
+
+    if args.json:
+        print(plan.model_dump_json(indent=2))
+    else:
+        print(render(plan))
+        if args.out is not None:
+            print(f"\nSaved the plan to {args.out}; apply it with `lpam apply {args.out}`.")
+    if args.detailed_exitcode and plan.has_changes:
+        return EXIT_CHANGES
+    return EXIT_OK
+
+
+def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.applying import apply_file, apply_plan_file
+
+    if args.planfile is not None and args.file is not None:
+        raise LpamError("give either a plan file or -f FILE, not both")
+    options = _options(args, keep_generations=args.keep_generations, release=args.release,
+                       wait=args.wait)
+    if args.planfile is not None:
+        print()
+        done = apply_plan_file(_machine(args, layout), args.planfile, options=options,
+                               report=Terminal())
+    else:
+        done = apply_file(_machine(args, layout), _desired_path(args, layout),
+                          options=options, confirm=lambda plan: _confirm(args),
+                          report=Terminal())
+    if done.cancelled:
+        print("Apply cancelled; nothing was changed.")
+        return EXIT_ERROR
+    if done.steps:
+        print(f"\nApply complete: {done.steps} steps; {done.app}. Script output: {done.log}")
+    return EXIT_OK
+
+
+def _confirm(args: argparse.Namespace) -> bool:
+    if not _ask(args, "\nApply these changes? Only 'yes' is accepted: ", what="apply",
+                verb="apply"):
+        return False
+    print()
+    return True
+
+
+def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
+    """`lpam start|stop|restart [APP]`: on the installed apps (or APP) now, journalled
+    like an apply."""
+    from reconciler.workflow.operate import operate_installed
+    from schemas.operator import OperatorAction
+
+    print(operate_installed(_machine(args, layout), OperatorAction(args.command),
+                            file=args.file, force=args.force,
+                            options=_options(args, wait=args.wait), report=Terminal(),
+                            app=args.app))
+    return EXIT_OK
+
+
+def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.operate import roll_back
+
+    def confirm(entries: list[HistoryEntry]) -> bool:
+        said = ", ".join(f"{e.app} ({e.generation}, commit {e.commit[:12]}" +
+                         (f", applied {e.time})" if len(entries) == 1 else ")")
+                         for e in entries)
+        print(f"Roll back to {said}" + ("?" if len(entries) == 1 else
+                                        f", applied {entries[0].time}?"))
+        return _ask(args, "Only 'yes' is accepted: ", what="rollback",
+                    verb="roll back")
+
+    done = roll_back(_machine(args, layout), file=args.file, force=args.force,
+                     options=_options(args, wait=args.wait), confirm=confirm,
+                     report=Terminal())
+    if done is None:
+        print("Rollback cancelled; nothing was changed.")
+        return EXIT_ERROR
+    print(done)
+    return EXIT_OK
+
+
+def cmd_gates(args: argparse.Namespace, layout: Layout) -> int:
+    """Each update gate now. Exit 0 when all are open, 75 when a cutover would be deferred."""
+    from reconciler.base.errors import Deferred
+    from reconciler.workflow.gates import gates_now
+
+    now_ = gates_now(_machine(args, layout), _desired_path(args, layout))
+    path, states = now_.path, now_.states
+    if args.json:
+        print(json.dumps({"desired_state": str(path), "gated": now_.gated,
+                          "open": now_.open, "gates": [
+                              {"name": s.name, "open": s.open, "detail": s.detail}
+                              for s in states]}, indent=2))
+    elif not now_.gated:
+        print(f"No update gates: {path} has no `gates:`; a cutover may happen at any moment.")
+    else:
+        print(f"Update gates of {path}:")
+        for s in states:
+            print(f"  {s.name:<8} {'open' if s.open else 'CLOSED':<7} {s.detail}")
+        print("A cutover may happen now." if now_.open else
+              "A cutover now would be deferred (exit 75).")
+    return EXIT_OK if now_.open else Deferred.exit_code
+
+
+def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
+    """The installed apps' output, or APP's (reconciler/workflow/logs.py says from where)."""
+    from reconciler.workflow.logs import app_logs, new_output
+
+    machine = _machine(args, layout)
+    shown = app_logs(machine, max(args.lines, 1), args.app)
+    for note in shown.notes:
+        print(f"note: {note}", file=sys.stderr)
+    for line in shown.lines:
+        print(line)
+    if args.follow:
+        for line in new_output(machine, shown):
+            print(line, flush=True)
+    return EXIT_OK
+
+
+def cmd_history(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.history import history
+
+    made = history(layout)
+    if args.json:
+        print(json.dumps([m.entry.model_dump(mode="json") for m in made], indent=2))
+        return EXIT_OK
+    if not made:
+        print("No history yet: no apply has made an app current.")
+        return EXIT_OK
+    sets = len({m.set for m in made}) < len(made)  # several apps: one apply, one set
+    for before, m in zip([None, *made], made):
+        if sets and before is not None and before.set != m.set:
+            print()  # the sets of apps, one block each
+        h = m.entry
+        params = " ".join(f"{k}={v}" for k, v in sorted(h.params.items())) or "-"
+        print(f"{'*' if m.current else ' '} {h.time}  {h.app:<20} {h.generation}  "
+              f"{h.repository}@{h.commit[:12]}  {h.result:<11}  {params}")
+    return EXIT_OK
+
+
+def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
+    """Exit 0 when applied, with nothing to do, or offline; 1 when the pass failed (the
+    running app untouched, the reason recorded)."""
+    from reconciler.workflow.agent import one_pass, settings
+
+    config = settings(layout, args.config)
+    done = one_pass(_machine(args, layout), config, wait=args.wait, report=Terminal(),
+                    options=_options(args, keep_generations=args.keep_generations),
+                    fetch_only=args.fetch_only, bundle=args.bundle)
+    revision = done.revision[:12] if done.revision else "none"
+    print(f"Sync: {done.result} (revision {revision})"
+          + (f": {done.reason}" if done.reason else ""),
+          file=sys.stderr if done.code else sys.stdout)
+    if done.code and done.hint:
+        print(f"  hint: {done.hint}", file=sys.stderr)
+    return done.code
+
+
+def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
+    """SIGTERM (systemd stopping the agent) stops it between passes at once, and during a
+    pass before the next step that is not part of a cutover: never mid-cutover."""
+    from reconciler.workflow.agent import Agent, settings
+
+    agent = Agent.following(_machine(args, layout), settings(layout, args.config),
+                            options=_options(args), report=_agent_report)
+    signal.signal(signal.SIGTERM, lambda signum, frame: agent.stop.set())
+    return agent.run(once=args.once)
+
+
+def cmd_ble(args: argparse.Namespace, layout: Layout) -> int:
+    """Logs to stdout, a line each (systemd's journal adds the time); 0 when stopped."""
+    from reconciler.frontends.ble.serve import serve
+
+    def log(line: str) -> None:
+        print(printable(line), flush=True)
+
+    return serve(_machine(args, layout), bus_address=args.bus, adapter=args.adapter, log=log,
+                 bug=lambda: debug_log(layout))
+
+
+def cmd_install_ble(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.agent import install_ble
+
+    command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
+    for path in install_ble(_machine(args, layout), command, report=Terminal()):
+        print(f"Wrote {path}")
+    print("The Bluetooth service answers the phone app (Privzone) as bluezone did; "
+          "bluezone's own unit is stopped while it runs (Conflicts=).")
+    return EXIT_OK
+
+
+def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
+    """The units run this very lpam (its interpreter, absolute) on this root; agent.yaml
+    must be valid first, so a car is never set to follow a source it cannot read."""
+    from reconciler.workflow.agent import install_agent
+
+    command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
+    written, config = install_agent(_machine(args, layout), command, config_file=args.config,
+                                    report=Terminal())
+    for path in written:
+        print(f"Wrote {path}")
+    print(f"The agent follows {config.source.url} ({config.source.branch}) every "
+          f"{config.interval_seconds:g} s, and fetches at shutdown.")
+    return EXIT_OK
+
+
+def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
+    """Made under a temporary root of its own: a laptop needs no lpam installation."""
+    from reconciler.workflow.packing import make_bundle
+
+    count = make_bundle(layout, args.out, url=args.source, branch=args.branch,
+                        network_timeout=args.network_timeout, report=Terminal())
+    print(f"Wrote {args.out}: the desired state and {count} repositories it pins; on the "
+          f"car: `lpam sync --bundle {args.out.name}`.")
+    return EXIT_OK
+
+
+def cmd_fleet(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow import fleet
+
+    tip, rows = fleet.read(args.repo, args.branch)
+    at = now()  # the ages of the reports are measured against this machine's clock
+    print(json.dumps(fleet.as_json(tip, rows, now=at), indent=2) if args.json
+          else fleet.as_table(tip, rows, now=at))
+    return EXIT_OK
+
+
+def cmd_pin(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.pin import pin
+
+    path = args.file if args.file is not None else layout.desired_state
+    done = pin(_machine(args, layout), path, report=Terminal(), catalogs=args.catalogs,
+               write=not args.dry_run, lock_timeout=args.lock_timeout)
+    if not done:
+        print(f"{path}: every repository is already pinned to a full commit.")
+    elif args.dry_run:
+        print(f"{path} was not changed (--dry-run).")
+    else:
+        print(f"Pinned {len(done)} repositories in {path}; review and commit it.")
+    return EXIT_OK
+
+
+def _agent_report(event: Event) -> None:
+    """The agent's events as log lines (its output goes to the journal)."""
+    from reconciler.workflow.events import Note, Planned, Progress
+
+    if isinstance(event, Note):
+        print(f"note: {event.text}", flush=True)
+    elif isinstance(event, Progress):
+        print(event.text, flush=True)
+    elif isinstance(event, Planned) and event.plan.steps:
+        print(event.plan.summary, flush=True)
+
+
+def cmd_services(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.machine import shutdown_services
+
+    if shutdown_services(layout):
+        print(f"Stopped the supervisord of {layout.root}; the apps it ran are stopped too.")
+    else:
+        print(f"No supervisord was running for {layout.root}.")
+    return EXIT_OK
+
+
+def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.report import status
+    from reconciler.workflow.machine import services_for
+
+    services = services_for(layout, args.services)
+    if args.json:
+        print(json.dumps(status.as_json(layout, state=services.state, manager=services.kind),
+                         indent=2))
+    else:
+        print(status.as_table(layout, state=services.state, manager=services.kind))
+    return EXIT_OK
+
+
+def cmd_validate(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.validation import Kind, validate
+
+    print(validate(Path(args.path), None if args.kind is None else Kind(args.kind)))
+    return EXIT_OK
+
+
+def cmd_import(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.workflow.importing import import_legacy
+
+    text = import_legacy(layout, args.etc_dir, output=args.output)
+    if args.output is None:
+        print(text, end="")
+    else:
+        print(f"Wrote {args.output}; review it, then `lpam plan -f {args.output}`.")
+    return EXIT_OK
+
+
+COMMANDS = {
+    "plan": cmd_plan,
+    "apply": cmd_apply,
+    "status": cmd_status,
+    "validate": cmd_validate,
+    "import-lpam": cmd_import,
+    "services": cmd_services,
+    "sync": cmd_sync,
+    "agent": cmd_agent,
+    "install-agent": cmd_install_agent,
+    "ble": cmd_ble,
+    "install-ble": cmd_install_ble,
+    "gates": cmd_gates,
+    "pin": cmd_pin,
+    "bundle": cmd_bundle,
+    "fleet": cmd_fleet,
+    "start": cmd_operate,
+    "stop": cmd_operate,
+    "restart": cmd_operate,
+    "logs": cmd_logs,
+    "history": cmd_history,
+    "rollback": cmd_rollback,
+}

@@ -1,0 +1,282 @@
+"""`libpanda-app-manager`: LPAM's command line, kept for the scripts and habits that call
+it, acting through lpam.
+
+It parses LPAM's flags exactly as its `getopts ":htkdscupli:g:b:r:"` did (clustered flags
+`-dc`, a value joined `-iAPP` or apart `-i APP`, `-g` acted on after the others), then each
+flag calls one workflow function — the same ones the Bluetooth service calls — so every
+rule (lock, gates, validation, health check) is lpam's. Unlike LPAM, it tells the truth:
+exit 0 only on success, each error one line on stderr, a value that looks like an option
+(`-i --upload-pack=x`) refused as a usage error, and no shell anywhere. LPAM's interactive
+menu (no flags) is gone: usage, exit 2.
+
+A car may run several apps side by side (issue 22): `-d` says `yes` under Enabled for each
+installed app and `-c` prints each on its own line, as LPAM printed its one; `-i APP`
+replaces only the apps that claim a resource APP claims (workflow/editing.py).
+
+`-d` prints LPAM's table for bluezone, which decodes it as UTF-8, then latin-1 through
+Python's `unicode_escape`: so the table is ASCII, non-ASCII text written as the `\\xNN`
+escapes of its UTF-8 bytes (bluezone turns them back into the characters) and a backslash
+doubled; a tab or line break inside a value would split bluezone's columns or rows and is
+written as a space.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from reconciler.base.errors import LpamError, Terminated
+
+if TYPE_CHECKING:
+    from reconciler.workflow.applying import ApplyOptions
+    from reconciler.workflow.events import Report
+    from reconciler.workflow.inventory import AppRow
+    from reconciler.workflow.machine import Machine
+
+PROG = "libpanda-app-manager"
+FLAGS = "htkdscupl"
+VALUED = "igbr"
+EXIT_OK, EXIT_USAGE = 0, 2
+HEADER = ("Repository", "Branch", "App", "Service", "Enabled", "Running", "Description")
+USAGE = f"""\
+usage: {PROG} [-d] [-l] [-c] [-t] [-i APP | -u] [-g OWNER/REPO [-b BRANCH]]
+                            [-r OWNER/REPO] [-p] [-s] [-k] [-h]
+
+LPAM's command line, on top of lpam: each flag edits lpam's default desired state
+($LPAM_ROOT/etc/lpam/desired-state.yaml, LPAM_ROOT default /) and applies it, or asks it.
+
+  -d               the apps of every repository: a tab-separated table (LPAM's, for bluezone);
+                   Enabled is yes for each installed app
+  -l               the app names
+  -c               the installed apps, one a line, or None
+  -t               each installed app's service, as its service manager sees it
+  -i APP           enable APP and apply (install, start): it replaces the apps that claim a
+                   resource APP claims (the panda...) and runs beside the others; in a
+                   version-1 desired state (one app) it replaces the app
+  -u               no app: stop and uninstall every installed app
+  -g OWNER/REPO    add a GitHub repository of apps (acted on after the other flags)
+  -b BRANCH        with -g: its branch (default: the repository's default branch)
+  -r OWNER/REPO    remove a repository (not one an installed app comes from)
+  -p               fetch every repository and apply (branches move to their tips)
+  -s / -k          start / stop the installed app
+  -h               this help
+
+Flags run in the order given and stop at the first failure. Exit 0 only on success;
+2 on a usage error. LPAM's interactive menu (no flags) is gone: usage, exit 2.
+The service manager is lpam's choice ($LPAM_SERVICES: systemd or supervisor)."""
+
+
+class UsageError(Exception):
+    """The command line is wrong: nothing was done (exit 2)."""
+
+
+@dataclass
+class Command:
+    """The parsed command line: the flags in order, and the repository to add last."""
+
+    actions: list[tuple[str, str | None]] = field(default_factory=list)
+    repository: str | None = None
+    branch: str | None = None
+    help: bool = False
+
+
+def parse(argv: Sequence[str]) -> Command:
+    """getopts' rules: options until `--` or the first word that is not one; a flag of
+    VALUED takes the rest of its word, else the next word (whatever it looks like)."""
+    pairs: list[tuple[str, str | None]] = []
+    index = 0
+    while index < len(argv):
+        word = argv[index]
+        index += 1
+        if word == "--":
+            break
+        if not word.startswith("-") or word == "-":
+            index -= 1
+            break
+        for at, flag in enumerate(word[1:], start=1):
+            if flag in VALUED:
+                value = word[at + 1:]
+                if not value:
+                    if index >= len(argv):
+                        raise UsageError(f"option -{flag} needs a value")
+                    value = argv[index]
+                    index += 1
+                pairs.append((flag, value))
+                break
+            if flag not in FLAGS:
+                raise UsageError(f"unknown option -{flag}")
+            pairs.append((flag, None))
+    if index < len(argv):
+        raise UsageError(f"unexpected argument {argv[index]!r}")
+    return _command(pairs)
+
+
+def _command(pairs: list[tuple[str, str | None]]) -> Command:
+    command = Command()
+    for flag, value in pairs:
+        if value is not None and (not value or value.startswith("-")):
+            raise UsageError(f"option -{flag}: {value!r} is refused (a value may not be empty "
+                             "or start with '-')")
+        if flag == "h":
+            command.help = True
+        elif flag in "gb":
+            if getattr(command, "repository" if flag == "g" else "branch") is not None:
+                raise UsageError(f"option -{flag} given twice")
+            setattr(command, "repository" if flag == "g" else "branch", value)
+        else:
+            command.actions.append((flag, value))
+    if command.branch is not None and command.repository is None:
+        raise UsageError("-b BRANCH goes with -g OWNER/REPO")
+    if not command.help and not command.actions and command.repository is None:
+        raise UsageError("no flag given (LPAM's interactive menu is gone)")
+    return command
+
+
+def table(rows: Sequence[AppRow]) -> str:
+    """LPAM's `-d` output: the header, then one line per app; every line ends in \\n."""
+    lines = ["\t".join(HEADER)]
+    for row in rows:
+        yes = {True: "yes", False: "no"}
+        cells = [row.repository, row.branch, row.app, row.service, yes[row.enabled],
+                 yes[row.running], f'"{row.description}"']
+        lines.append("\t".join(bluezone_safe(cell) for cell in cells))
+    return "".join(line + "\n" for line in lines)
+
+
+def bluezone_safe(text: str) -> str:
+    """`text` in ASCII that bluezone's decoding turns back into `text` (module docstring)."""
+    out = []
+    for char in text:
+        if char == "\\":
+            out.append("\\\\")
+        elif ord(char) < 32 or ord(char) == 127:
+            out.append(" ")
+        elif ord(char) < 128:
+            out.append(char)
+        else:
+            out.append("".join(f"\\x{byte:02x}" for byte in char.encode("utf-8", "replace")))
+    return "".join(out)
+
+
+def run(machine: Machine, command: Command) -> None:
+    """Each flag in order, `-g` last (LPAM's order); the first failure raises."""
+    for flag, value in command.actions:
+        _act(machine, flag, value)
+    if command.repository is not None:
+        from reconciler.workflow.editing import add_repository
+
+        done = add_repository(machine, command.repository, command.branch, by=PROG,
+                              options=_options(), report=_report())
+        print(f"Repository {command.repository} "
+              f"{'added' if done.changed else 'already present'}; {done.applied.app}.")
+
+
+def _act(machine: Machine, flag: str, value: str | None) -> None:
+    from reconciler.workflow import editing, inventory
+
+    if flag == "d":
+        sys.stdout.write(table(inventory.app_table(machine)))
+    elif flag == "l":
+        names = dict.fromkeys(r.app for r in inventory.app_table(machine))
+        print(" ".join(names))
+    elif flag == "c":
+        print("\n".join(inventory.current_apps(machine)) or "None")
+    elif flag == "t":
+        print(inventory.service_state(machine))
+    elif flag in "iu":
+        done = editing.enable_app(machine, value, by=PROG, options=_options(),
+                                  report=_report())
+        print(f"{'App ' + str(value) if value else 'No app'} enabled; {done.applied.app}.")
+    elif flag == "r":
+        assert value is not None
+        editing.remove_repository(machine, value, by=PROG, options=_options(),
+                                  report=_report())
+        print(f"Repository {value} removed.")
+    elif flag == "p":
+        updated = editing.update(machine, options=_options(), report=_report())
+        print(f"Updated: {updated.steps} steps; {updated.app}.")
+    elif flag in "sk":
+        _operate(machine, flag)
+
+
+def _operate(machine: Machine, flag: str) -> None:
+    from reconciler.workflow.operate import operate_installed
+    from schemas.operator import OperatorAction
+
+    action = OperatorAction.START if flag == "s" else OperatorAction.STOP
+    print(operate_installed(machine, action, file=None, force=False, options=_options(),
+                            report=_report()))
+
+
+def _options() -> ApplyOptions:
+    from reconciler.workflow.applying import ApplyOptions
+
+    return ApplyOptions()
+
+
+def _report() -> Report:
+    from reconciler.frontends.console import Terminal
+
+    return Terminal()
+
+
+def _machine() -> Machine:
+    from reconciler.base.layout import Layout
+    from reconciler.workflow.machine import Machine
+
+    root = os.environ.get("LPAM_ROOT") or "/"
+    return Machine.at(Layout(Path(root).resolve()))
+
+
+def _fail(message: str) -> None:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+
+
+def one_line(exc: LpamError) -> str:
+    """The error as the CLI renders it (with its file:line:col), on one line."""
+    lines = exc.render().removeprefix("error: ").splitlines()
+    text = lines[0]
+    hint = next((line.strip() for line in lines[1:] if line.strip().startswith("hint:")), None)
+    return f"{text} ({hint})" if hint else text
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from reconciler.base.layout import Layout
+    from reconciler.frontends.console import debug_log, terminate
+
+    try:
+        command = parse(sys.argv[1:] if argv is None else argv)
+    except UsageError as exc:
+        _fail(f"{exc} (see {PROG} -h)")
+        return EXIT_USAGE
+    if command.help:
+        print(USAGE)
+        return EXIT_OK
+    signal.signal(signal.SIGTERM, terminate)
+    try:
+        run(_machine(), command)
+    except LpamError as exc:
+        _fail(one_line(exc))
+        return exc.exit_code
+    except BrokenPipeError:  # `libpanda-app-manager -d | head -1`: the reader left
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
+    except (KeyboardInterrupt, Terminated) as exc:
+        _fail("interrupted: lpam recorded where it stood; `lpam apply` goes on from there")
+        return 143 if isinstance(exc, Terminated) else 130
+    except Exception:  # a bug: the traceback goes to lpam's debug log, never to the user
+        root = os.environ.get("LPAM_ROOT") or "/"
+        _fail(f"internal error; details in {debug_log(Layout(Path(root).resolve()))}")
+        return 1
+    return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""The status report: what every face of lpam says about the car."""
