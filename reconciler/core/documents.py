@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import weakref
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
@@ -75,14 +76,41 @@ def _validate(doc: _Places, data: Any, model: type[BaseModel], what: str) -> Any
         raise validation_error(doc, exc, what) from None
 
 
+@dataclass(frozen=True)
+class DesiredDocument:
+    """A desired state with where it is written: the file (or a source's label, such as
+    `fleet.git@c92f32f2ab56/desired-state.yaml`) and each app entry's 1-based (line,
+    column), in the order of `desired.apps` (a version-1 file's `app:`, as written).
+
+    The model holds no positions (it is compared and fingerprinted by content); they
+    travel beside it, so a copy of the model (`replace(document, desired=…)`) keeps them,
+    and what refuses two apps that claim one resource names both apps' places."""
+
+    desired: DesiredState
+    path: Path
+    places: tuple[tuple[int, int], ...]
+
+
+def load_desired_document(path: Path) -> DesiredDocument:
+    """A desired-state file of any supported version, as the current model with its
+    apps' places."""
+    return desired_document(load(path))
+
+
 def load_desired(path: Path) -> DesiredState:
-    """A desired-state file of any supported version, as the current model."""
-    return desired_from(load(path))
+    """A desired-state file of any supported version, as the current model (for callers
+    that place no fault at an app's entry)."""
+    return load_desired_document(path).desired
 
 
 def desired_from(doc: Document) -> DesiredState:
+    """The desired state in a document already parsed, as the current model alone."""
+    return desired_document(doc).desired
+
+
+def desired_document(doc: Document) -> DesiredDocument:
     """The desired state in a document already parsed (parsing is the costly part: a large
-    document is parsed once, whoever looks at it first).
+    document is parsed once, whoever looks at it first), with its apps' places.
 
     A file of version 1 says `app:` where the current model says `apps: [ … ]`: its
     faults are placed by `_V1Places`, at the line and column of the file as written."""
@@ -97,10 +125,10 @@ def desired_from(doc: Document) -> DesiredState:
     _check_duplicate_repositories(placed, data)
     _check_duplicate_apps(placed, data)
     state: DesiredState = _validate(placed, data, DesiredState, "desired state")
-    _APP_PLACES[id(state)] = (doc.path, [placed.position(["apps", i])
-                                         for i in range(len(state.apps))])
+    places = tuple(placed.position(["apps", i]) for i in range(len(state.apps)))
+    _APP_PLACES[id(state)] = (doc.path, list(places))
     weakref.finalize(state, _APP_PLACES.pop, id(state), None)
-    return state
+    return DesiredDocument(state, doc.path, places)
 
 
 def _mapping(data: Any) -> dict[Any, Any]:
