@@ -56,10 +56,11 @@ class Applied:
 
 def apply(machine: Machine, path: Path, desired: DesiredState, *, options: ApplyOptions,
           confirm: Callable[[Plan], bool], report: Report, local: bool = False,
-          base_dir: Path | None = None) -> Applied:
+          base_dir: Path | None = None, places: Sequence[tuple[int, int]] = ()) -> Applied:
     """`lpam apply [-f FILE]`: the plan is reported (`Planned`) and `confirm`ed before it
     runs; nothing changes when it is declined. `local`: use no network, resolving refs as
-    the last fetch (or an unpacked bundle) left them; refused if anything is not local."""
+    the last fetch (or an unpacked bundle) left them; refused if anything is not local.
+    `places`: each desired app's (line, column) in `path`, as `plan` takes them."""
     from reconciler.core.planning.plan import unknown_values
     from reconciler.engine.execution.lock import apply_lock
     from reconciler.engine.observe.targets import Fetch
@@ -68,7 +69,8 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
         if options.release:
             _release(machine, report)
         fetch = Fetch.OFFLINE if local else Fetch.CHECKOUT
-        store, made = prepare(machine, path, desired, fetch=fetch, report=report)
+        store, made = prepare(machine, path, desired, fetch=fetch, report=report,
+                              places=places)
         report(Planned(made))
         missing = unknown_values(made) if local else []
         if missing:
@@ -90,16 +92,18 @@ def apply_file(machine: Machine, path: Path, *, options: ApplyOptions,
                confirm: Callable[[Plan], bool], report: Report) -> Applied:
     """`lpam apply [-f FILE]`: the desired state at `path` read — refused before the lock,
     while the network helper starts — then applied as `apply` does."""
-    from reconciler.core.documents import load_desired
+    from reconciler.core.documents import load_desired_document
 
     machine.warm_network()
     if options.release and path == machine.layout.desired_state:
         fleet = _end_override(machine, options, report)
         if fleet is not None:  # the car follows its fleet's file again, at once
             return apply(machine, fleet.label, fleet.desired, options=options,
-                         confirm=confirm, report=report, base_dir=fleet.base_dir)
-    desired = load_desired(path)
-    return apply(machine, path, desired, options=options, confirm=confirm, report=report)
+                         confirm=confirm, report=report, base_dir=fleet.base_dir,
+                         places=fleet.places)
+    document = load_desired_document(path)
+    return apply(machine, path, document.desired, options=options, confirm=confirm,
+                 report=report, places=document.places)
 
 
 def _end_override(machine: Machine, options: ApplyOptions, report: Report) -> Followed | None:

@@ -76,7 +76,7 @@ def _pinned(machine: Machine, url: str, tip: str, report: Report) -> list[Entry]
         document = desired_at(machine, url, tip, name)
         if document is None:
             continue
-        label, desired = document
+        label, desired = document.path, document.desired
         targets = resolve(desired, base_dir=Path("/"), store=store, fetch=Fetch.OBJECTS,
                           root=machine.layout.root)
         repos = list(targets.repositories)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import io
 import re
-from collections.abc import Callable, Mapping, MutableMapping
+from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -364,7 +364,7 @@ def edit(machine: Machine, change: Change, *, by: str, options: ApplyOptions,
     is validated, and apply it (see `_apply`). Everything up to the apply happens before
     the lock: a refused edit never waits."""
     from reconciler.base.loading import load
-    from reconciler.core.documents import desired_from
+    from reconciler.core.documents import desired_document, desired_from
 
     found = override.editable(machine)
     doc = load(found.path, found.text)
@@ -376,17 +376,20 @@ def edit(machine: Machine, change: Change, *, by: str, options: ApplyOptions,
     out = io.StringIO()
     yaml.dump(tree, out)
     text = out.getvalue()
-    desired = desired_from(load(found.path, text))
-    return _apply(machine, found, text, desired, by=by, options=options, report=report)
+    document = desired_document(load(found.path, text))
+    return _apply(machine, found, text, document.desired, by=by, options=options,
+                  report=report, places=document.places)
 
 
 def _apply(machine: Machine, found: override.Editable, text: str, desired: DesiredState, *,
-           by: str, options: ApplyOptions, report: Report) -> Edited:
+           by: str, options: ApplyOptions, report: Report,
+           places: Sequence[tuple[int, int]] = ()) -> Edited:
     """The edited text is written when the plan made under the lock is confirmed, and
     the old one put back if the execution fails; with no step to run, it is written after
     (nothing on the machine changes), under the lock again. Either way only if the file
     still holds what the edit began from: two frontends editing at once must not undo
-    each other's change (the second is refused, to be made again on the new text)."""
+    each other's change (the second is refused, to be made again on the new text).
+    `places`: each app's (line, column) in the edited text, as `apply` takes them."""
     from reconciler.engine.execution.lock import apply_lock
 
     old = None if found.seeded else found.text.encode("utf-8")
@@ -402,7 +405,7 @@ def _apply(machine: Machine, found: override.Editable, text: str, desired: Desir
     machine.warm_network()
     try:
         done = apply(machine, found.path, desired, options=options, confirm=confirm,
-                     report=report)
+                     report=report, places=places)
     except LpamError:
         if written:
             _put(found.path, old, new)

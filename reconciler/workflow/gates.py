@@ -35,13 +35,13 @@ def in_force(machine: Machine, file: Path | None) -> Followed | None:
     """The desired state in force (see the module): `file`, else the default file, else
     the agent's. One that cannot be read leaves the gates unknown, which is refused rather
     than guessed; `file` given but absent: none."""
-    from reconciler.core.documents import load_desired
+    from reconciler.core.documents import load_desired_document
     from reconciler.workflow.sync import Followed, applied_desired
 
     path = file if file is not None else machine.layout.desired_state
     try:
         if path.exists():
-            return Followed(path, load_desired(path), path.resolve().parent)
+            return Followed.of(load_desired_document(path), path.resolve().parent)
         return None if file is not None else applied_desired(machine)
     except LpamError as exc:  # raised as it is, so a document's file:line:col stays
         exc.hint = ((exc.hint + "; ") if exc.hint else "") + (

@@ -9,6 +9,7 @@ and then its steps are what finishes it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -28,9 +29,12 @@ if TYPE_CHECKING:
 
 
 def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
-         offline: bool = False, out: Path | None = None, lock_timeout: float | None = None) -> Plan:
+         offline: bool = False, out: Path | None = None, lock_timeout: float | None = None,
+         places: Sequence[tuple[int, int]] = ()) -> Plan:
     """`lpam plan`: exact when it can take the lock, from what is local beside a running
-    apply (said in a note) or when `offline`. `out` saves the plan (an exact one only)."""
+    apply (said in a note) or when `offline`. `out` saves the plan (an exact one only).
+    `places`: each desired app's (line, column) in `path` (a `DesiredDocument`'s), where
+    a refusal names it; none for a desired state made in code (the file alone)."""
     from reconciler.engine.execution.lock import apply_lock, holder
     from reconciler.engine.observe.targets import Fetch
 
@@ -39,11 +43,12 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
                         "after a fetch", hint="drop --offline to save an exact plan")
     if offline:
         return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
-                       busy=holder(machine.layout))[1]
+                       busy=holder(machine.layout), places=places)[1]
     try:
         with apply_lock(machine.layout,
                         timeout=LOCK_TIMEOUT if lock_timeout is None else lock_timeout):
-            _, made = prepare(machine, path, desired, fetch=Fetch.OBJECTS, report=report)
+            _, made = prepare(machine, path, desired, fetch=Fetch.OBJECTS, report=report,
+                              places=places)
             if out is not None:
                 from reconciler.base.atomic import write_atomic
 
@@ -54,23 +59,26 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
         if out is not None or busy is None:
             raise
         return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
-                       busy=busy)[1]
+                       busy=busy, places=places)[1]
 
 
 def plan_file(machine: Machine, path: Path, *, report: Report, offline: bool = False,
               out: Path | None = None, lock_timeout: float | None = None) -> Plan:
     """`lpam plan [-f FILE]`: the desired state at `path` read (refused before any lock),
     then planned as `plan` does."""
-    from reconciler.core.documents import load_desired
+    from reconciler.core.documents import load_desired_document
 
-    return plan(machine, path, load_desired(path), report=report, offline=offline, out=out,
-                lock_timeout=lock_timeout)
+    document = load_desired_document(path)
+    return plan(machine, path, document.desired, report=report, offline=offline, out=out,
+                lock_timeout=lock_timeout, places=document.places)
 
 
 def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch,
-            report: Report, busy: str | None = None) -> tuple[GitStore, Plan]:
+            report: Report, busy: str | None = None,
+            places: Sequence[tuple[int, int]] = ()) -> tuple[GitStore, Plan]:
     """Resolve the desired state, observe the machine and plan; `path` anchors relative
-    URLs. `busy` is what holds the lock when the caller planned beside a running apply."""
+    URLs. `busy` is what holds the lock when the caller planned beside a running apply;
+    `places` as `plan` takes them."""
     from reconciler.core.planning.plan import make_plan
     from reconciler.engine.observe.machine import asks_manager, observe
     from reconciler.engine.observe.targets import Fetch, resolve
@@ -88,7 +96,7 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
                       default_user=libpanda_user(layout), root=layout.root,
                       notice=lambda text: report(Note(text)))
-    refuse_shared_claims(desired, path, targets)  # every plan and apply passes here
+    refuse_shared_claims(path, places, targets)  # every plan and apply passes here
     report(Phase("resolve"))
     needs = any(a.deps.how for a in targets.apps)  # apt, pip or ROS
     observed = observe(layout, store, targets,
@@ -107,17 +115,19 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     return store, made
 
 
-def refuse_shared_claims(desired: DesiredState, path: Path, targets: Targets) -> None:
+def refuse_shared_claims(path: Path, places: Sequence[tuple[int, int]],
+                         targets: Targets) -> None:
     """Two desired apps that claim one exclusive resource (core/planning/resources.py) are
     refused once their catalogs are read, before anything on the car changes, at the
-    second app's place in the desired state and naming the first's."""
-    from reconciler.core.documents import app_place
+    second app's place in the desired state at `path` and naming the first's (`places`:
+    each app's (line, column) there, in the desired order, as `DesiredDocument` has them;
+    an app without one is named by the file alone)."""
     from reconciler.core.planning.resources import Claim, Where, conflicts, refuse
 
     claims = []
     for index, app in enumerate(targets.apps):
-        where, line, column = app_place(desired, index)
-        claims.append(Claim(app.name, Where(where or path, line, column), app.resources))
+        line, column = places[index] if index < len(places) else (None, None)
+        claims.append(Claim(app.name, Where(path, line, column), app.resources))
     refuse(conflicts(claims))
 
 

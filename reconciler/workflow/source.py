@@ -19,6 +19,7 @@ from reconciler.workflow.machine import Machine
 from schemas.agent import AgentConfig
 
 if TYPE_CHECKING:
+    from reconciler.core.documents import DesiredDocument
     from schemas.desired import DesiredState
 
 SOURCE_KEY = "@source"  # the desired-state repository in the store: never an app's key
@@ -45,17 +46,21 @@ class DesiredStateSource(Protocol):
 
 
 def desired_at(machine: Machine, url: str, revision: str,
-               name: str) -> tuple[Path, DesiredState] | None:
+               name: str) -> DesiredDocument | None:
     """The desired state in the file `name` of the source at `revision` (None without it),
-    relative URLs made absolute; faults are located as `fleet.git@c92f32f2ab56/<name>`."""
+    relative URLs made absolute; faults are located as `fleet.git@c92f32f2ab56/<name>`
+    (its `path`), its apps' places kept through the anchoring."""
+    from dataclasses import replace
+
     from reconciler.base.loading import load
-    from reconciler.core.documents import desired_from
+    from reconciler.core.documents import desired_document
 
     data = machine.store().read_file(SOURCE_KEY, revision, name)
     if data is None:
         return None
     label = Path(f"{url.rstrip('/').rsplit('/', 1)[-1]}@{revision[:12]}") / name
-    return label, anchored(desired_from(load(label, data.decode("utf-8", "replace"))), url)
+    found = desired_document(load(label, data.decode("utf-8", "replace")))
+    return replace(found, desired=anchored(found.desired, url))
 
 
 def anchored(desired: DesiredState, source: str) -> DesiredState:

@@ -67,6 +67,7 @@ from schemas.agent import (
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from reconciler.core.documents import DesiredDocument
     from schemas.desired import DesiredState
     from schemas.override import LocalOverride
 
@@ -165,7 +166,7 @@ def _applied(machine: Machine, choose: Callable[[], Followed], revision: str | N
         chosen = choose()
         done = apply(machine, chosen.label, chosen.desired, options=options,
                      confirm=lambda plan: True, report=report, local=local,
-                     base_dir=chosen.base_dir)
+                     base_dir=chosen.base_dir, places=chosen.places)
     except StopRequested as exc:  # not a failure: the next pass tries the revision again
         return Synced("stopped", revision, exc.message)
     except Deferred as exc:  # prepared, not cut over: the next pass tries again
@@ -187,13 +188,14 @@ def _overridden(machine: Machine, local: LocalOverride, revision: str, *,
     """A local override is in force (workflow/override.py): the pass applies the local
     file, not the fleet's — which finishes an edit a power cut interrupted, and leaves one
     that was applied as it is — and the fleet's revision waits for the override's end."""
-    from reconciler.core.documents import load_desired
+    from reconciler.core.documents import load_desired_document
 
     path = machine.layout.desired_state
     why = (f"local override ({local.by}, since {local.since}): the fleet's revision "
            f"{revision[:12]} waits until `lpam apply --release` or the phone's update")
     report(Note(why))
-    done = _applied(machine, lambda: Followed(path, load_desired(path), path.resolve().parent),
+    done = _applied(machine, lambda: Followed.of(load_desired_document(path),
+                                                 path.resolve().parent),
                     None, options=options, report=report, local=offline, why=why)
     return done if done.reason is not None else Synced(done.result, None, why, done.hint)
 
@@ -363,12 +365,19 @@ def _tip(machine: Machine, config: AgentConfig) -> str | None:
 @dataclass(frozen=True)
 class Followed:
     """A desired state read from the source at a revision: its label (the file as
-    `fleet.git@c92f32f2ab56/desired-state.yaml`, in errors and the record), and where its
-    relative files (`dbc:`, `log:`) are on this machine."""
+    `fleet.git@c92f32f2ab56/desired-state.yaml`, in errors and the record), where its
+    relative files (`dbc:`, `log:`) are on this machine, and each app's (line, column)
+    in it (a `DesiredDocument`'s `places`; none: faults name the file alone)."""
 
     label: Path
     desired: DesiredState
     base_dir: Path
+    places: tuple[tuple[int, int], ...] = ()
+
+    @classmethod
+    def of(cls, document: DesiredDocument, base_dir: Path) -> Followed:
+        """The desired state `document` holds, its relative files in `base_dir`."""
+        return cls(document.path, document.desired, base_dir, document.places)
 
 
 def followed(machine: Machine, vehicle: str, revision: str) -> str | None:
@@ -391,8 +400,7 @@ def _desired(machine: Machine, config: AgentConfig, vehicle: str,
     found = None if name is None else desired_at(machine, config.source.url, revision, name)
     if found is not None:
         assert name is not None
-        label, desired = found
-        return Followed(label, desired, _files_of(machine, revision, name, desired, keep=keep))
+        return Followed.of(found, _files_of(machine, revision, name, found.desired, keep=keep))
     raise ConfigError(f"neither {VEHICLE_DIR}/{vehicle}.yaml nor {DEFAULT_FILE} is in the "
                       f"source at {revision[:12]}", path=machine.layout.agent_config,
                       hint=f"commit a desired state for this vehicle ({vehicle}) or for all")
@@ -454,7 +462,7 @@ def _fetch_pins(machine: Machine, config: AgentConfig, vehicle: str, revision: s
 
     try:
         chosen = _desired(machine, config, vehicle, revision)
-        plan(machine, chosen.label, chosen.desired, report=report)
+        plan(machine, chosen.label, chosen.desired, report=report, places=chosen.places)
     except GitError as exc:
         report(Note(f"offline: {exc.message}"))
         return Synced("offline", revision, "the source was fetched; the commits it pins "

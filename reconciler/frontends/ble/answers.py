@@ -165,7 +165,7 @@ def _plan_and_gates(machine: Machine) -> dict[str, str]:
     found = {}
     try:
         made = plan(machine, wanted.label, wanted.desired, report=quiet, offline=True,
-                    lock_timeout=PHONE_LOCK_WAIT)
+                    lock_timeout=PHONE_LOCK_WAIT, places=wanted.places)
         found["plan"] = made.summary or "no changes"
     except LpamError as exc:
         found["plan"] = f"not known: {reason(exc)}"
