@@ -7,7 +7,6 @@ Pydantic's error locations are mapped back onto the YAML tree kept by loading.py
 from __future__ import annotations
 
 import json
-import weakref
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -125,10 +124,8 @@ def desired_document(doc: Document) -> DesiredDocument:
     _check_duplicate_repositories(placed, data)
     _check_duplicate_apps(placed, data)
     state: DesiredState = _validate(placed, data, DesiredState, "desired state")
-    places = tuple(placed.position(["apps", i]) for i in range(len(state.apps)))
-    _APP_PLACES[id(state)] = (doc.path, list(places))
-    weakref.finalize(state, _APP_PLACES.pop, id(state), None)
-    return DesiredDocument(state, doc.path, places)
+    return DesiredDocument(state, doc.path, tuple(placed.position(["apps", i])
+                                                  for i in range(len(state.apps))))
 
 
 def _mapping(data: Any) -> dict[Any, Any]:
@@ -156,22 +153,6 @@ class _V1Places:
               hint: str | None = None) -> ConfigError:
         line, column = self.position(loc)
         return ConfigError(message, path=self.path, line=line, column=column, hint=hint)
-
-
-_APP_PLACES: dict[int, tuple[Path, list[tuple[int, int]]]] = {}
-"""id(desired state) → its file and each app's (line, column), while the model lives: the
-model holds no positions (it is compared and fingerprinted by content), yet planning's
-refusal of several apps names the second app's place."""
-
-
-def app_place(desired: DesiredState, index: int) -> tuple[Path | None, int | None, int | None]:
-    """The file, line and column of `desired.apps[index]` as loaded (None: not loaded from
-    a document, e.g. a model built or copied in code)."""
-    found = _APP_PLACES.get(id(desired))
-    if found is None or index >= len(found[1]):
-        return None, None, None
-    path, places = found
-    return (path, *places[index])
 
 
 def _check_duplicate_apps(doc: _Places, data: dict[str, Any]) -> None:
