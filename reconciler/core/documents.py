@@ -1,7 +1,9 @@
 """Documents from disk to validated models, with every fault at file:line:column.
 
 load → migrate → validate: the path every desired state, catalog and saved plan takes.
-Pydantic's error locations are mapped back onto the YAML tree kept by loading.py.
+Pydantic's error locations are mapped back onto the YAML tree kept by loading.py. A
+desired state comes with its apps' places (`DesiredDocument`), for the faults found only
+later, once the apps' catalogs are read (two apps that claim one resource).
 """
 
 from __future__ import annotations
