@@ -18,13 +18,12 @@ gates: {stationary_seconds: 60, windows: ["22:00-06:00"]}  # optional: no gates 
 Version 1 said `app: X` (one app, or `app: null`); it is still read, through
 migrations/desired_state_v1_to_v2.py, and lpam's own edits keep such a file version 1.
 Version 2 lists apps, which run side by side (core/planning/ensemble.py); two that claim one
-exclusive resource are refused when planned (core/planning/resources.py). `app` (the
-property) is the first app: the one-app world's view.
+exclusive resource are refused when planned (core/planning/resources.py). One app is a
+list of one.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
@@ -235,21 +234,6 @@ class DesiredState(BaseModel):
         if not isinstance(value, list):
             return value
         return [{"name": item} if isinstance(item, str) else item for item in value]
-
-    @property
-    def app(self) -> AppSpec | None:
-        """The single app of the one-app engine: None for `apps: []`. With several apps
-        this is the first; planning refuses such a desired state before it asks
-        (workflow/planning.py), so no engine acts on a list cut short."""
-        return self.apps[0] if self.apps else None
-
-    def model_copy(self, *, update: Mapping[str, Any] | None = None,
-                   deep: bool = False) -> DesiredState:
-        """A copy with `update`; `app` is refused by name: it is a property now, and
-        pydantic would set it beside the property silently (the copy keeping its apps)."""
-        if update is not None and "app" in update:
-            raise TypeError("DesiredState.app is read-only: update `apps` (a list) instead")
-        return super().model_copy(update=update, deep=deep)
 
     @model_validator(mode="after")
     def _unique(self) -> DesiredState:

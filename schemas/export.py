@@ -30,7 +30,7 @@ from schemas.record import StateRecord
 DOCUMENTS: dict[str, type[BaseModel]] = {
     "desired-state.v2.schema.json": DesiredState,
     "app-catalog.schema.json": RawCatalog,
-    "state-record.v5.schema.json": StateRecord,
+    "state-record.v6.schema.json": StateRecord,
     "plan.v2.schema.json": Plan,
     "generation-meta.v1.schema.json": GenerationMeta,
     "agent.v1.schema.json": AgentConfig,

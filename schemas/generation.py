@@ -15,9 +15,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer
 
-ONE_APP_CLAIMS = frozenset({"panda"})
-"""What an app whose claims are not known holds: the one-app world's apps all owned the
-panda (schemas/catalog.py PANDA)."""
+UNKNOWN_CLAIMS = frozenset({"panda"})
+"""What an app whose claims are not known holds: before lpam knew claims, every app it
+installed ran alone and owned the panda (schemas/catalog.py PANDA)."""
 
 
 class GenerationFields(BaseModel):
@@ -44,7 +44,7 @@ class GenerationFields(BaseModel):
         default=None, description="the exclusive resources it claims (`panda`, "
         "`service:can`, …): no other installed app may claim one of them. None: not "
         "known (installed before lpam knew claims), taken as `panda`, which every app "
-        "owned in the one-app world")
+        "owned then")
 
     @property
     def scriptless(self) -> bool:
@@ -63,7 +63,7 @@ class GenerationFields(BaseModel):
     @property
     def claims(self) -> frozenset[str]:
         """The resources it holds while installed (`panda` when not known)."""
-        return frozenset(self.resources) if self.resources is not None else ONE_APP_CLAIMS
+        return frozenset(self.resources) if self.resources is not None else UNKNOWN_CLAIMS
 
 
 class AppGeneration(GenerationFields):

@@ -20,14 +20,17 @@ as such, not as the one before it.
 Version 5 keeps a set of installed apps (`apps`, in the order they were installed): a car
 may run a controller that owns the panda beside a recorder and a tracker (issue 22). A
 cutover returns to the set that ran before (`cutover.previous`), and a rollback names
-every app of the apply it undid (`cutover.rollback.failed`). The one-app view (`app`)
-stays for what the old tool's single-app world reads and writes: the record's only app.
+every app of the apply it undid (`cutover.rollback.failed`).
+
+Version 6 has one model of apps: a car runs a set of apps keyed by name, and one app is a
+set of one. A rollback's hold names the set it returns to (`hold.targets`) and nothing
+else: version 5's `hold.target` (one app) and `hold.generation` (a name derived from the
+set) are gone.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -35,12 +38,11 @@ from pydantic import (
     Field,
     SerializerFunctionWrapHandler,
     model_serializer,
-    model_validator,
 )
 
 from schemas.generation import GenerationFields
 
-CURRENT_VERSION = 5
+CURRENT_VERSION = 6
 
 AppStatus = Literal["installing", "installed", "starting", "running", "stopping", "uninstalling"]
 """Where the installed app's lifecycle stands. The -ing values are written *before* the
@@ -215,17 +217,20 @@ class Hold(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     desired: str = Field(description="fingerprint of the desired state that was rolled back")
-    generation: str = Field(description="the generation the rollback returned to")
-    target: HistoryEntry | None = Field(
-        default=None, description="what the rollback returns to: a rollback cut off by a "
-        "crash is finished by the next plan and apply")
     targets: list[HistoryEntry] = Field(
-        default_factory=list, description="several apps: the set the rollback returns to "
-        "(`target` is the one-app world's)")
+        default_factory=list, description="the set of apps the rollback returns to: a "
+        "rollback cut off by a crash is finished by the next plan and apply (empty: "
+        "recorded by an lpam that did not keep it)")
 
-    def returns_to(self) -> list[HistoryEntry]:
-        """The set the rollback returns to."""
-        return list(self.targets) or ([self.target] if self.target is not None else [])
+    @property
+    def name(self) -> str:
+        """The set it returns to as a plan and status name it (`app@generation`, one
+        generation's id alone for a set of one)."""
+        if not self.targets:
+            return "an earlier generation"
+        if len(self.targets) == 1:
+            return self.targets[0].generation
+        return ", ".join(f"{e.app}@{e.generation}" for e in self.targets)
 
 
 class Rollback(BaseModel):
@@ -260,7 +265,7 @@ class Cutover(BaseModel):
 class StateRecord(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    version: Literal[5] = 5
+    version: Literal[6] = 6
     lineage: str | None = None
     serial: int = 0
     repositories: list[RepositoryRecord] = Field(default_factory=list)
@@ -271,9 +276,6 @@ class StateRecord(BaseModel):
     hold: Hold | None = None
     cutover: Cutover | None = None
     desired: DesiredRef | None = None
-
-    if TYPE_CHECKING:  # `StateRecord(app=X)`, the one-app record (`_one_app` below)
-        def __init__(self, *, app: AppRecord | None = None, **data: Any) -> None: ...
 
     def repository(self, key: str) -> RepositoryRecord | None:
         return next((r for r in self.repositories if r.key == key), None)
@@ -290,32 +292,3 @@ class StateRecord(BaseModel):
             at = next((i for i, a in enumerate(self.apps) if a.name == name), len(apps))
             apps.insert(at, app)
         return self.model_copy(update={"apps": apps})
-
-    @property
-    def app(self) -> AppRecord | None:
-        """The one-app view: the record's only app (the first, when several are
-        installed: code that plans or shows several apps reads `apps`)."""
-        return self.apps[0] if self.apps else None
-
-    @model_validator(mode="before")
-    @classmethod
-    def _one_app(cls, data: Any) -> Any:
-        """`StateRecord(app=X)` in code still makes the one-app record. Only in code: a
-        document read from disk carries its `version` and is upgraded by migrations."""
-        if isinstance(data, dict) and "app" in data and "version" not in data:
-            app = data["app"]
-            data = {k: v for k, v in data.items() if k != "app"}
-            data["apps"] = [] if app is None else [app]
-        return data
-
-    def model_copy(self, *, update: Mapping[str, Any] | None = None,
-                   deep: bool = False) -> StateRecord:
-        """`update={"app": X}` replaces the one-app view: the only app, or no app. On a
-        record of several apps it is refused (a bug: which app was meant?)."""
-        if update is not None and "app" in update:
-            update = dict(update)
-            app = update.pop("app")
-            if len(self.apps) > 1:
-                raise ValueError("a record of several apps is updated through `apps`")
-            update["apps"] = [] if app is None else [app]
-        return super().model_copy(update=update, deep=deep)

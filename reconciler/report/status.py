@@ -142,12 +142,11 @@ def _damaged(common: dict[str, str], damage: str) -> Row:
 
 def rows(
     layout: Layout, *, record: StateRecord | None = None, store: Objects | None = None,
-    live: UnitState | None = None, lives: Mapping[str, UnitState] | None = None,
+    lives: Mapping[str, UnitState] | None = None,
 ) -> list[Row]:
     """Every app of every recorded repository at its recorded commit, and each installed
     app even when no catalog lists it any more (it may be the one that holds the CAN
-    hardware). `lives`: each installed app's unit as its manager sees it, by name; `live`,
-    the one-app world's only app's."""
+    hardware). `lives`: each installed app's unit as its manager sees it, by name."""
     if store is None:
         from reconciler.adapters.git import GitStore
 
@@ -155,7 +154,7 @@ def rows(
     if record is None:
         record = read_record(layout)
     if lives is None:
-        lives = {} if live is None or record.app is None else {record.app.name: live}
+        lives = {}
     table: list[Row] = []
     for repo in record.repositories:
         common = {"repository": repo.key, "ref": repo.ref or "(default)",
@@ -248,7 +247,7 @@ def as_json(layout: Layout, *, store: Objects | None = None,
     """`state` asks the service manager (`manager`) about a unit. `app` is the first
     installed app (what readers before several apps read), `installed` every one."""
     record = read_record(layout)  # once: an apply may rewrite it while status runs
-    app = record.app
+    app = record.apps[0] if record.apps else None  # what readers before several apps read
     lives = _lives(record, state)
     last = record.last_apply
     return {
@@ -361,8 +360,8 @@ def _footer(layout: Layout, record: StateRecord, lives: Mapping[str, UnitState],
     lines = []
     if len(record.apps) > 1:
         lines += _apps_footer(record, lives, manager)
-    elif record.app is not None and record.app.name in lives:
-        live = lives[record.app.name]
+    elif record.apps and record.apps[0].name in lives:
+        live = lives[record.apps[0].name]
         lines.append(f"Service manager: {manager or '?'}; {printable(_unit_said(live))}")
     lines += [printable(line) for line in _checkouts(record)]
     lines += [printable(f"Held: {h['what']}; it ends {h['ends']}.") for h in holds(record)]
@@ -416,7 +415,7 @@ def holds(record: StateRecord) -> list[dict[str, str]]:
     if record.hold is not None:
         found.append({
             "kind": "rollback", "what": f"`lpam rollback` returned to generation "
-            f"{record.hold.generation}, and plans propose nothing else",
+            f"{record.hold.name}, and plans propose nothing else",
             "against": against,
             "ends": f"when the desired state last applied ({against}) changes, or with "
             "`lpam apply --release`"})

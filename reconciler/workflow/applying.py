@@ -205,7 +205,7 @@ def _release(machine: Machine, report: Report) -> None:
     hold = record.hold
     if hold is not None:
         record = write_record(machine.layout, record.model_copy(update={"hold": None}))
-        report(Progress(f"Released the hold on generation {hold.generation}."))
+        report(Progress(f"Released the hold on generation {hold.name}."))
     for app in record.apps:
         if app.held:
             record = write_record(machine.layout, record.with_app(

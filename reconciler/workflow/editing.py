@@ -127,11 +127,11 @@ def enable_app(machine: Machine, name: str | None, *, by: str, options: ApplyOpt
                 return
             beside(tree, current, name, claims)
             return
-        entry = tree.get("app")
+        entry = tree.get("app")  # a version-1 file: `app:` names at most one app
         if name is None:
-            if current.app is not None:
+            if current.apps:
                 roundtrip.replace(tree, "app", None)
-        elif current.app is not None and current.app.name == name:
+        elif [a.name for a in current.apps] == [name]:
             return
         elif isinstance(entry, MutableMapping):  # the same entry, its other keys dropped: its
             _renamed(entry, name)                 # comments stay where they were

@@ -1,5 +1,5 @@
 """The history use case (`lpam history`): the sets of apps made current, newest last, and
-which of them is the one installed now. In the one-app world each set is one generation."""
+which of them is the one installed now (a car of one app makes sets of one)."""
 
 from __future__ import annotations
 
@@ -27,14 +27,8 @@ def history(layout: Layout) -> list[Made]:
     from schemas.record import history_sets
 
     record = read_record(layout)
-    app = record.app
     made = []
     for number, entries in enumerate(history_sets(record.history)):
-        for h in entries:
-            if len(record.apps) > 1 or len(entries) > 1:
-                current = h.result == "applied" and same_set(entries, record.apps)
-            else:
-                current = app is not None and h.result == "applied" and \
-                    (h.generation, h.params) == (app.generation, app.params)
-            made.append(Made(h, current, number))
+        current = entries[0].result == "applied" and same_set(entries, record.apps)
+        made += [Made(h, current, number) for h in entries]
     return made

@@ -61,9 +61,9 @@ def app_logs(machine: Machine, lines: int, app: str | None = None) -> Shown:
         if found is None:
             raise LpamError(f"no installed app is named {app!r}: there is no output to show",
                             hint=f"installed: {', '.join(a.name for a in installed)}")
-        return one_app_logs(machine, found, lines)
+        return logs_of(machine, found, lines)
     if len(installed) == 1:
-        return one_app_logs(machine, installed[0], lines)
+        return logs_of(machine, installed[0], lines)
     return _every_app(machine, installed, lines)
 
 
@@ -77,7 +77,7 @@ def _every_app(machine: Machine, installed: list[AppRecord], lines: int) -> Show
     errors: list[str] = []
     for app in installed:
         try:
-            shown = one_app_logs(machine, app, lines)
+            shown = logs_of(machine, app, lines)
         except LpamError as exc:
             errors.append(exc.message)
             continue
@@ -92,7 +92,7 @@ def _every_app(machine: Machine, installed: list[AppRecord], lines: int) -> Show
     return Shown(said, notes + errors, units=units, seen=seen)
 
 
-def one_app_logs(machine: Machine, app: AppRecord, lines: int) -> Shown:
+def logs_of(machine: Machine, app: AppRecord, lines: int) -> Shown:
     """One installed app's last `lines` lines of output."""
     if app.service is not None:
         state = machine.services.state(app.service)

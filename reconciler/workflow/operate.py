@@ -22,7 +22,7 @@ from pathlib import Path
 from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS
-from reconciler.core.planning.lifecycle import operator_steps
+from reconciler.core.planning.ensemble import operator_steps
 from reconciler.core.planning.model import GenerationKey
 from reconciler.core.planning.plan import fingerprint
 from reconciler.engine.execution.context import Context
@@ -71,9 +71,8 @@ def resumed_by(command: str) -> str:
 
 def roll_back(machine: Machine, *, file: Path | None, force: bool, options: ApplyOptions,
               confirm: Callable[[list[HistoryEntry]], bool], report: Report) -> str | None:
-    """`lpam rollback`: under the apply lock, the previous good set of apps (one app in
-    the one-app world) is found and `confirm`ed, then made current (see `rollback`); None
-    when it was declined. It holds
+    """`lpam rollback`: under the apply lock, the previous good set of apps is found and
+    `confirm`ed, then made current (see `rollback`); None when it was declined. It holds
     against `file` (else the default file) when no apply recorded what it applied."""
     from reconciler.core.documents import load_desired
 
@@ -193,7 +192,7 @@ def previous_good(ctx: Context) -> list[HistoryEntry]:
 
 def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | None, *,
              progress: ProgressLine) -> str:
-    """Make `entries` (a set of apps, one in the one-app world) current again through
+    """Make `entries` (a set of apps) current again through
     journalled steps, and hold them there. The hold is written first: if lpam dies
     mid-rollback, the next plan finishes it (workflow.planning). It holds against the
     desired state last applied, whichever file or revision that came from (`desired`, the
@@ -201,10 +200,8 @@ def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | 
     from reconciler.engine.execution.recovery import steps_back
 
     applied = ctx.record.desired
-    one = entries[0] if len(entries) == 1 else None
     hold = Hold(desired=applied.fingerprint if applied is not None
-                else desired_fingerprint(desired), generation=set_name(entries),
-                target=one, targets=[] if one is not None else entries)
+                else desired_fingerprint(desired), targets=entries)
     with gates_passed(ctx, progress):
         ctx.save(ctx.record.model_copy(update={"hold": hold}))
         steps = steps_back(ctx.record, [e.installed() for e in entries],
@@ -215,15 +212,8 @@ def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | 
                     ctx, progress=progress, record_result=False)
     said = ", ".join(f"{e.app} ({e.generation}, commit {e.commit[:12]})" for e in entries)
     return (f"Rolled back to {said}. "
-            f"{'It holds' if one is not None else 'They hold'}: plan and apply propose "
+            f"{'It holds' if len(entries) == 1 else 'They hold'}: plan and apply propose "
             "nothing until the desired state changes (or `lpam apply --release`).")
-
-
-def set_name(entries: list[HistoryEntry]) -> str:
-    """A set of generations as a hold and a plan name it (`app@generation` for several)."""
-    if len(entries) == 1:
-        return entries[0].generation
-    return ", ".join(f"{e.app}@{e.generation}" for e in entries)
 
 
 def desired_fingerprint(desired: DesiredState | None) -> str:

@@ -90,10 +90,11 @@ def _report_ros(machine: Machine, path: Path, report: Report, *,
         targets = resolve(desired, base_dir=path.resolve().parent, store=machine.store(),
                           fetch=Fetch.OBJECTS, default_user=libpanda_user(machine.layout),
                           root=machine.layout.root)
-    if targets.app is None or not targets.app.deps.ros:
-        report(Progress("the app names no ROS repositories"))
+    sources = {s.name: s for app in targets.apps for s in app.deps.ros}
+    if not sources:
+        report(Progress("the apps name no ROS repositories"))
         return
-    for source in targets.app.deps.ros:
+    for source in sources.values():
         follows = source.repo.ref or "default branch"
         pinned = "pinned" if source.repo.ref is not None and is_hex_commit(source.repo.ref) \
             else "follows a branch: pin it in the app's catalog"

@@ -176,17 +176,17 @@ def _held_plan(machine: Machine, store: GitStore, record: StateRecord, hold: str
     from reconciler.core.planning.plan import make_plan
     from reconciler.engine.observe.machine import observe
 
-    entries = record.hold.returns_to() if record.hold is not None else []
+    entries = record.hold.targets if record.hold is not None else []
     if entries:
         repos = tuple(RepoTarget(r.key, r.url, r.ref, r.commit) for r in record.repositories)
-        targets = Targets(repos, apps=tuple(target_of(e.installed()) for e in entries))
+        targets = Targets(repos, tuple(target_of(e.installed()) for e in entries))
         made = make_plan(targets, observe(machine.layout, store, targets, machine.services),
                          now=machine.clock(), lpam_version=__version__)
         if made.steps:
             back = ", ".join(f"{e.app} ({e.generation})" for e in entries)
             report(Note(f"the rollback to {back} was cut off; the steps below finish it"))
             return made
-    return make_plan(Targets((), None), Observed(record=record, repositories={}),
+    return make_plan(Targets(()), Observed(record=record, repositories={}),
                      now=machine.clock(), lpam_version=__version__, hold=hold)
 
 
@@ -207,7 +207,7 @@ def _finishing_plan(machine: Machine, record: StateRecord, report: Report) -> Pl
     back = f"to {names(previous)}" if previous else "removing the new app"
     reason = (f"the rollback {back} after {failed} failed ({rollback.reason}) was cut off "
               "by a fault: finished, and the failure recorded")
-    steps = steps_back(refreshed(record, None, lives=lives(record, machine.services)),
+    steps = steps_back(refreshed(record, lives(record, machine.services)),
                        previous, generations.present(machine.layout))
     report(Note(f"a rollback {back} was cut off by a fault; the steps below finish it"))
     return sealed(record, [Change(address="rollback", action=Action.UPDATE, reason=reason)],
@@ -222,5 +222,5 @@ def hold_reason(record: StateRecord, desired: DesiredState) -> str | None:
     hold = record.hold
     if hold is None or hold.desired != desired_fingerprint(desired):
         return None
-    return (f"held by `lpam rollback` at generation {hold.generation}: nothing is proposed "
+    return (f"held by `lpam rollback` at generation {hold.name}: nothing is proposed "
             "until the desired state changes (`lpam apply --release` ends the hold)")

@@ -20,7 +20,7 @@ def test_first_apply_from_empty_installs_and_starts(
     lpam.desired(desired(git_daemon.url("apps.git"), "alpha", MODE="fast"))
     plan = lpam("plan", "--detailed-exitcode")
     assert plan.returncode == 2, plan.stderr
-    assert "+ repository.apps" in plan.stdout and "+ app: install alpha" in plan.stdout
+    assert "+ repository.apps" in plan.stdout and "+ app.alpha: install alpha" in plan.stdout
     done = lpam("apply", "--yes")
     assert done.returncode == 0, done.stderr
     assert lpam.events() == ["alpha:install:fast", "alpha:start:fast"]
@@ -225,7 +225,7 @@ def test_failing_script_stops_the_apply_with_a_clear_message(
     assert "Traceback" not in done.stderr
     assert lpam.events() == ["alpha:install:", "alpha:start:", "alpha:stop:", "alpha:uninstall:"]
     assert lpam.status()["app"] is None
-    assert "+ app: install alpha" in lpam("plan").stdout
+    assert "+ app.alpha: install alpha" in lpam("plan").stdout
 
 
 def test_scripts_get_params_a_log_and_a_timeout(

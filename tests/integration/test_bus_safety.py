@@ -89,7 +89,7 @@ def test_interrupting_lpam_stops_the_script_it_runs(
     (lpam.root / "release").touch()
     time.sleep(0.3)
     assert not (lpam.root / "start-ended").exists()  # the script did not outlive lpam
-    apps = record(lpam)["apps"]  # the record's version 5 lists the installed apps
+    apps = record(lpam)["apps"]  # the record lists the installed apps (version 5 on)
     assert isinstance(apps, list) and len(apps) == 1
     app = apps[0]
     assert isinstance(app, dict) and app["status"] == "starting"  # it knows start.sh was cut

@@ -81,7 +81,7 @@ def test_sigkill_during_cutover_then_apply_converges(
     assert proc.returncode == -signal.SIGKILL
     # alpha is uninstalled; the record says beta's install.sh may have been cut off
     record = json.loads((lpam.root / "var/lib/lpam/state.json").read_text())
-    [app] = record["apps"]  # the record's version 5 lists the installed apps
+    [app] = record["apps"]  # the record lists the installed apps (version 5 on)
     assert (app["name"], app["status"]) == ("beta", "installing")
     (lpam.root / "killed-once").touch()
     again = lpam("apply", "--yes")

@@ -78,7 +78,7 @@ def test_a_plan_names_the_repository_that_offers_the_app(
     lpam.desired(two_repos(lpam, git_daemon, "gamma"))
     plan = lpam("plan")
     assert plan.returncode == 0, plan.stderr
-    assert "+ app: install gamma from more" in plan.stdout
+    assert "+ app.gamma: install gamma from more" in plan.stdout
     assert "known after fetch" not in plan.stdout
     lpam.desired(two_repos(lpam, git_daemon, "delta"))
     missing = lpam("plan")

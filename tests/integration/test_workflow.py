@@ -71,7 +71,7 @@ def test_a_declined_plan_changes_nothing(machine: Machine, document: Path) -> No
     done = apply(machine, document, load_desired(document), options=ApplyOptions(),
                  confirm=decline, report=lambda e: None)
     assert done.cancelled and done.steps == 0 and seen[0].steps
-    assert read_record(machine.layout).app is None
+    assert not read_record(machine.layout).apps
     assert not (machine.layout.root / "events.log").exists()
 
 
@@ -81,4 +81,4 @@ def test_a_plan_reports_its_phases_in_order(machine: Machine, document: Path) ->
     events: list[Event] = []
     made = plan(machine, document, load_desired(document), report=events.append)
     assert [e.name for e in events if isinstance(e, Phase)] == ["resolve", "observe", "plan"]
-    assert made.has_changes and read_record(machine.layout).app is None
+    assert made.has_changes and not read_record(machine.layout).apps

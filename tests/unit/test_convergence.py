@@ -42,6 +42,7 @@ from reconciler.engine.observe.machine import observe
 from reconciler.engine.records import generations
 from reconciler.engine.records.state import read_record, write_record
 from schemas.record import AppRecord, RepositoryRecord, StateRecord, Stray
+from tests.records import sole
 
 URL, KEY = "git://h/apps", "lab/apps"
 C1, C2 = "a" * 40, "b" * 40
@@ -123,7 +124,7 @@ def machines(draw: st.DrawFn) -> tuple[StateRecord, list[tuple[str, str]]]:
                     params=params, generation=gen, status=draw(st.sampled_from(STATUSES)),
                     command=list(COMMAND) if name == "z" else None, service=unit)
     repo = RepositoryRecord(key=KEY, url=URL, ref=None, commit=commit)
-    return StateRecord(lineage="L", serial=1, repositories=[repo], app=app), [
+    return StateRecord(lineage="L", serial=1, repositories=[repo], apps=[app]), [
         (name, commit, params)]  # type: ignore[list-item]
 
 
@@ -153,8 +154,8 @@ class World:
                 params=params, command=COMMAND if name == "z" else None,
                 service="lpam-app-z" if name == "z" else None)
             generations.stage(self.layout, self.store, gen)
-            status = record.app.status if record.app is not None else "running"
-            if status != "installing" or record.app is None:
+            status = sole(record).status if record.apps else "running"
+            if status != "installing" or not record.apps:
                 self.scripts.installed.add(name)
                 if name == "z":  # its unit is written: the manager knows it
                     self.services.known_units.add("lpam-app-z")
@@ -172,7 +173,8 @@ class World:
             tree=TREES[(wish[0], commit)], params=wish[2],
             command=COMMAND if wish[0] == "z" else None,
             service="lpam-app-z" if wish[0] == "z" else None)
-        return Targets(repositories=(RepoTarget(KEY, URL, None, commit),), app=app)
+        return Targets(repositories=(RepoTarget(KEY, URL, None, commit),),
+                       apps=() if app is None else (app,))
 
     def monotonic(self) -> float:
         return self.clock
@@ -209,14 +211,14 @@ def converge(world: World, wish: tuple[str, str, dict[str, str]] | None) -> None
     assert world.pending(wish) == [], world.scripts.calls
     record = read_record(world.layout)
     if wish is None:
-        assert record.app is None and not record.strays
+        assert not record.apps and not record.strays
     else:
-        assert record.app is not None and record.app.name == wish[0] and record.app.running
+        assert sole(record).name == wish[0] and sole(record).running
     assert not world.scripts.violations, world.scripts.violations
     if wish is not None:
         assert world.scripts.active <= {wish[0]}
         gens = {tuple(g) for g in generations.present(world.layout)}
-        assert gens == {(wish[0], record.app.generation)} if record.app else gens == set()
+        assert gens == {(wish[0], sole(record).generation)} if record.apps else gens == set()
 
 
 @settings(max_examples=EXAMPLES, deadline=None)

@@ -53,18 +53,18 @@ def installed(app: AppTarget) -> AppRecord:
 
 
 def observed(app: AppRecord | None, deps: DepsObserved) -> Observed:
-    record = StateRecord(lineage="L", serial=1, app=app, repositories=[
+    record = StateRecord(lineage="L", serial=1, apps=[] if app is None else [app], repositories=[
         RepositoryRecord(key="o/apps", url="git://h/apps", ref="main", commit=A)])
     gens = frozenset() if app is None else frozenset({GenerationKey.of(app.name,
                                                                          app.generation)})
     return Observed(record=record, repositories={
         "o/apps": RepoObserved(key="o/apps", present=True, head=A)}, generations=gens,
-        deps=deps)
+        deps_by={"vsl": deps})
 
 
 def plan_for(app: AppTarget, obs: Observed) -> Plan:
     repos = (RepoTarget(key="o/apps", url="git://h/apps", ref="main", commit=A),)
-    return make_plan(Targets(repos, app), obs, now=NOW, lpam_version="t")
+    return make_plan(Targets(repos, (app,)), obs, now=NOW, lpam_version="t")
 
 
 MISSING = DepsObserved(apt_missing=("libdiagnostic-updater-dev",),

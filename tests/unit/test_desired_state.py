@@ -43,10 +43,10 @@ app: {name: cbf, repository: jmscslgroup/libpanda-default-apps, params: {RATE: "
     assert keys == ["jmscslgroup/libpanda-default-apps", "other"]
     assert state.repositories[0].source(tmp_path) == (
         "https://github.com/jmscslgroup/libpanda-default-apps")
-    assert state.app is not None and state.app.params == {"RATE": "10"}
+    assert [a.params for a in state.apps] == [{"RATE": "10"}]
     short = load_desired(write(tmp_path, "version: 1\napp: pandarecord\n"))
-    assert short.app is not None and short.app.name == "pandarecord"
-    assert load_desired(write(tmp_path, "version: 1\napp: null\n")).app is None
+    assert [a.name for a in short.apps] == ["pandarecord"]
+    assert load_desired(write(tmp_path, "version: 1\napp: null\n")).apps == []
 
 
 def test_relative_path_is_relative_to_the_document(tmp_path: Path) -> None:
@@ -56,7 +56,7 @@ def test_relative_path_is_relative_to_the_document(tmp_path: Path) -> None:
 
 def test_example_desired_state_is_valid() -> None:
     state = load_desired(TOP / "desired-state.example.yaml")
-    assert state.app is not None and state.app.name == "can-logger"
+    assert [a.name for a in state.apps] == ["can-logger"]
 
 
 @pytest.mark.parametrize(

@@ -36,6 +36,7 @@ from reconciler.workflow.operate import operate
 from schemas.operator import OperatorAction
 from schemas.plan import Plan
 from schemas.record import StateRecord
+from tests.records import sole
 from tests.unit.test_convergence import C1, COMMAND, KEY, NOW, TREES, World
 
 FAILING = ("./healthy.sh",)
@@ -87,7 +88,7 @@ class Car(World):
         off is finished first); the error it ended with, None on success."""
         from reconciler.core.planning.model import RepoTarget, Targets
 
-        targets = Targets((RepoTarget(KEY, "git://h/apps", None, C1),), self.target(name))
+        targets = Targets((RepoTarget(KEY, "git://h/apps", None, C1),), (self.target(name),))
         record = read_record(self.layout)
         if record.cutover is not None and record.cutover.rollback is not None:
             plan = self.finishing(record)
@@ -118,7 +119,7 @@ def good_x(root: Path) -> Car:
     car = Car(root)
     assert car.run("x") is None
     record = read_record(car.layout)
-    assert record.app is not None and (record.app.name, record.app.good) == ("x", True)
+    assert (sole(record).name, sole(record).good) == ("x", True)
     return car
 
 
@@ -141,8 +142,8 @@ def assert_truth_after_recovery(car: Car) -> None:
     again = car.run("z")
     assert isinstance(again, HealthError), again  # never reported as success
     record = read_record(car.layout)
-    assert record.app is not None and record.app.name == "x" and record.app.running
-    assert record.app.good and record.cutover is None
+    assert sole(record).name == "x" and sole(record).running
+    assert sole(record).good and record.cutover is None
     assert record.last_apply is not None and record.last_apply.result == "rolled back"
     assert [h.app for h in record.history if h.result == "rolled back"][-1:] == ["z"]
     assert [h.app for h in record.history if h.result == "applied"] == ["x"]  # z never was
@@ -197,12 +198,12 @@ def test_only_a_good_generation_is_returned_to(tmp_path: Path) -> None:
         car.run("z")
     car.scripts.crash = lambda call: None
     record = read_record(car.layout)
-    assert record.app is not None and (record.app.name, record.app.good) == ("z", False)
+    assert (sole(record).name, sole(record).good) == ("z", False)
     car.scripts.fail = {"y:start.sh"}
     failed = car.run("y")
     assert isinstance(failed, LpamError) and "Rolled back to x" in failed.message
     record = read_record(car.layout)
-    assert record.app is not None and record.app.name == "x" and record.app.running
+    assert sole(record).name == "x" and sole(record).running
     assert car.active() == {"x"} and not car.scripts.violations
 
 
@@ -220,10 +221,10 @@ def test_an_operators_stop_cut_off_anywhere_is_carried_out(tmp_path: Path, k: in
         operate(car.context(), OperatorAction.STOP, progress=car.notes.append)
     car.save_hook = lambda n: None
     record = read_record(car.layout)
-    if record.app is not None and record.app.held:  # the stop was asked for: it holds
+    if record.apps and sole(record).held:  # the stop was asked for: it holds
         assert car.run("x") is None
         record = read_record(car.layout)
-        assert record.app is not None and record.app.held and record.app.status == "installed"
+        assert sole(record).held and sole(record).status == "installed"
         assert car.active() == set()
         targets_plan = car.pending(("x", C1, {}))
         assert targets_plan == [], targets_plan
@@ -247,7 +248,7 @@ def test_a_journal_made_unwritable_mid_apply_does_not_stop_it(tmp_path: Path, k:
     car.scripts.crash = unwritable
     assert car.run("y") is None
     record = read_record(car.layout)
-    assert record.app is not None and (record.app.name, record.app.running) == ("y", True)
+    assert (sole(record).name, sole(record).running) == ("y", True)
     assert car.active() == {"y"} and not car.scripts.violations
     if len(seen) > k:
         notes = [n for n in car.notes if "journal could not be written" in n]
@@ -278,27 +279,27 @@ def test_an_unwritable_record_stops_where_it_stands_and_says_so(
         assert isinstance(outcome, StateWriteError), outcome
         assert "The record shows" in outcome.message and outcome.hint
         assert "Traceback" not in outcome.message
-    recorded = {record.app.name} if record.app is not None else set()
-    assert car.active() <= recorded, (car.active(), record.app)  # never less than may run
+    recorded = {sole(record).name} if record.apps else set()
+    assert car.active() <= recorded, (car.active(), sole(record))  # never less than may run
     assert not car.scripts.violations
     assert car.run("y") is None
     record = read_record(car.layout)
-    assert record.app is not None and (record.app.name, record.app.running) == ("y", True)
+    assert (sole(record).name, sole(record).running) == ("y", True)
     assert car.active() == {"y"} and not car.scripts.violations
 
 
 def test_with_no_cutover_recorded_an_unproven_app_is_never_returned_to(tmp_path: Path) -> None:
     """The good app to go back to, when no cut-off apply named one: the installed app if
-    it proved good, else the newest good generation of the history still on disk."""
+    it proved good, else the newest good generation of it in the history still on disk."""
     from reconciler.engine.execution.recovery import returns_to
     from reconciler.engine.records import generations
 
     car = good_x(tmp_path)
-    x = read_record(car.layout).app
+    x = sole(read_record(car.layout))
     assert x is not None
     assert returns_to(read_record(car.layout), generations.present(car.layout)) == [x]
-    unproven = x.model_copy(update={"name": "z", "generation": "z-gen", "good": False})
-    record = read_record(car.layout).model_copy(update={"app": unproven, "cutover": None})
+    unproven = x.model_copy(update={"generation": "x-new", "good": False})
+    record = read_record(car.layout).model_copy(update={"apps": [unproven], "cutover": None})
     [back] = returns_to(record, generations.present(car.layout))
     assert (back.name, back.generation, back.good) == ("x", x.generation, True)
     gone = record.model_copy(update={"history": []})  # nothing good known: what is there

@@ -21,13 +21,14 @@ from reconciler.engine.records.state import read_record
 from reconciler.workflow.operate import operate
 from schemas.operator import OperatorAction
 from schemas.record import AppRecord, RepositoryRecord, StateRecord
+from tests.records import sole
 from tests.unit.test_convergence import C1, C2, KEY, NOW, TREES, URL, World
 
 
 def running_x(root: Path) -> World:
     app = AppRecord(name="x", repository=KEY, commit=C1, tree=TREES[("x", C1)], path="x",
                     generation=generation_id(TREES[("x", C1)], {}), status="running")
-    record = StateRecord(lineage="L", serial=1, app=app,
+    record = StateRecord(lineage="L", serial=1, apps=[app],
                          repositories=[RepositoryRecord(key=KEY, url=URL, ref=None, commit=C1)])
     return World(root, record, [("x", C1, {})])
 
@@ -56,7 +57,7 @@ def test_a_closed_gate_defers_the_cutover_after_everything_was_prepared(
         apply(world, gate)
     assert info.value.exit_code == 75
     assert world.scripts.calls == []  # x neither stopped nor uninstalled
-    app = read_record(world.layout).app
+    app = sole(read_record(world.layout))
     assert app is not None and (app.commit, app.status) == (C1, "running")
     assert world.store.head(KEY) == C2  # the preparation went ahead
     new = generation_id(TREES[("x", C2)], {})
@@ -77,7 +78,7 @@ def test_the_next_apply_with_the_gates_open_cuts_over_and_releases_the_locks(
     apply(world, gate)
     assert world.scripts.calls == ["x:stop.sh", "x:uninstall.sh", "x:install.sh",
                                    "x:start.sh"]
-    app = read_record(world.layout).app
+    app = sole(read_record(world.layout))
     assert app is not None and app.commit == C2
     assert (gate.holds, gate.releases) == (1, 1)
     assert deferral(world.layout) is None
@@ -107,7 +108,7 @@ def test_operator_commands_obey_the_gates_unless_forced(tmp_path: Path) -> None:
     with pytest.raises(Deferred):
         operate(context(world, MemoryGate(["moving: 30.0 km/h"])), OperatorAction.STOP,
                 progress=lambda _: None)
-    app = read_record(world.layout).app
+    app = sole(read_record(world.layout))
     assert app is not None and not app.held and app.status == "running"
     assert world.scripts.calls == []
     gate = MemoryGate([])

@@ -18,6 +18,7 @@ from reconciler.workflow.events import Event
 from reconciler.workflow.gates import Governing, governing
 from reconciler.workflow.machine import Machine
 from schemas.operator import OperatorAction
+from tests.records import sole
 from tests.unit.test_gate_execution import running_x
 
 GATED = "version: 1\napp: null\ngates:\n  windows: ['00:00-23:59']\n"
@@ -72,5 +73,5 @@ def test_an_operator_stop_obeys_the_gates_in_force(tmp_path: Path,
     with pytest.raises(Deferred):
         operate.operate_installed(machine, OperatorAction.STOP, file=None, force=False,
                                   options=ApplyOptions(), report=quiet)
-    app = read_record(world.layout).app
+    app = sole(read_record(world.layout))
     assert app is not None and not app.held and world.scripts.calls == []

@@ -22,6 +22,7 @@ from migrations import (
     state_record_v2_to_v3,
     state_record_v3_to_v4,
     state_record_v4_to_v5,
+    state_record_v5_to_v6,
     upgrade,
 )
 from migrations.step import MigrationError
@@ -44,6 +45,7 @@ STEP_FIXTURES = {
     ("state-record", "2"): FIXTURES / "state-record" / "v2_to_v3",
     ("state-record", "3"): FIXTURES / "state-record" / "v3_to_v4",
     ("state-record", "4"): FIXTURES / "state-record" / "v4_to_v5",
+    ("state-record", "5"): FIXTURES / "state-record" / "v5_to_v6",
     ("agent-status", "1"): FIXTURES / "agent-status" / "v1_to_v2",
     ("plan", "1"): FIXTURES / "plan" / "v1_to_v2",
     ("generation-meta", "0"): FIXTURES / "generation-meta" / "v0_to_v1",
@@ -63,6 +65,7 @@ RECORD_PAIRS = pairs(STEP_FIXTURES[("state-record", "1")])
 RECORD_V3_PAIRS = pairs(STEP_FIXTURES[("state-record", "2")])
 RECORD_V4_PAIRS = pairs(STEP_FIXTURES[("state-record", "3")])
 RECORD_V5_PAIRS = pairs(STEP_FIXTURES[("state-record", "4")])
+RECORD_V6_PAIRS = pairs(STEP_FIXTURES[("state-record", "5")])
 AGENT_STATUS_V2_PAIRS = pairs(STEP_FIXTURES[("agent-status", "1")])
 PLAN_V2_PAIRS = pairs(STEP_FIXTURES[("plan", "1")])
 META_V1_PAIRS = pairs(STEP_FIXTURES[("generation-meta", "0")])
@@ -114,7 +117,8 @@ def test_state_record_v1_to_v2_matches_fixture_and_validates(before: Path, after
     assert state_record_v1_to_v2.upgrade(data) == read(after)
     assert data == original, "a step must not modify its input"
     record = StateRecord.model_validate(upgrade("state-record", data, path=before))
-    assert record.app is None or record.app.running is data["app"]["running"]
+    assert [a.running for a in record.apps] == \
+        ([data["app"]["running"]] if data["app"] else [])
 
 
 @pytest.mark.parametrize(("before", "after"), RECORD_V3_PAIRS, ids=lambda p: p.name)
@@ -125,8 +129,8 @@ def test_state_record_v2_to_v3_matches_fixture_and_validates(before: Path, after
     assert data == original, "a step must not modify its input"
     record = StateRecord.model_validate(upgrade("state-record", data, path=before))
     assert record.history == [] and record.last_apply is None
-    assert record.app is None or (record.app.status == data["app"]["status"]
-                                  and not record.app.held and record.app.service is None)
+    assert all(a.status == data["app"]["status"] and not a.held and a.service is None
+               for a in record.apps)
 
 
 @pytest.mark.parametrize(("before", "after"), RECORD_V4_PAIRS, ids=lambda p: p.name)
@@ -138,7 +142,7 @@ def test_state_record_v3_to_v4_matches_fixture_and_validates(before: Path, after
     record = StateRecord.model_validate(upgrade("state-record", data, path=before))
     assert record.cutover is None
     # an app the old rules installed was taken for good: it stays a rollback target
-    assert record.app is None or record.app.good
+    assert all(a.good for a in record.apps)
 
 
 @pytest.mark.parametrize(("before", "after"), RECORD_V5_PAIRS, ids=lambda p: p.name)
@@ -156,6 +160,25 @@ def test_state_record_v4_to_v5_matches_fixture_and_validates(before: Path, after
         assert record.cutover is not None
         assert [a.name for a in record.cutover.previous] == \
             ([cutover["previous"]["name"]] if cutover["previous"] else [])
+
+
+@pytest.mark.parametrize(("before", "after"), RECORD_V6_PAIRS, ids=lambda p: p.name)
+def test_state_record_v5_to_v6_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    """A hold names the set it returns to and nothing else: version 5's one app
+    (`target`) becomes a set of one, several stay as they were, and the fingerprint it
+    holds against is kept, so the hold still holds after the upgrade."""
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert state_record_v5_to_v6.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    record = StateRecord.model_validate(upgrade("state-record", data, path=before))
+    hold = data["hold"]
+    if hold is None:
+        assert record.hold is None
+        return
+    assert record.hold is not None and record.hold.desired == hold["desired"]
+    named = hold.get("targets") or ([hold["target"]] if hold.get("target") else [])
+    assert [e.generation for e in record.hold.targets] == [e["generation"] for e in named]
 
 
 @pytest.mark.parametrize(("before", "after"), AGENT_STATUS_V2_PAIRS, ids=lambda p: p.name)

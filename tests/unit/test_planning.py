@@ -73,7 +73,8 @@ def observed(*, commit: str | None = A, app_rec: AppRecord | None = None, head: 
     repos = [] if commit is None else [
         RepositoryRecord(key="o/apps", url=url, ref="main", commit=commit)
     ]
-    record = StateRecord(lineage="L", serial=3, repositories=repos, app=app_rec)
+    record = StateRecord(lineage="L", serial=3, repositories=repos,
+                         apps=[] if app_rec is None else [app_rec])
     obs = {} if commit is None else {
         "o/apps": RepoObserved(key="o/apps", present=True, head=head or commit, local_edits=edits)
     }
@@ -87,9 +88,9 @@ def actions(targets: Targets, obs: Observed) -> dict[str, Action]:
 
 
 def test_first_apply_creates_repository_and_app() -> None:
-    plan = make_plan(Targets((repo(),), app()), observed(commit=None), now=NOW, lpam_version="t")
+    plan = make_plan(Targets((repo(),), (app(),)), observed(commit=None), now=NOW, lpam_version="t")
     assert {c.address: c.action for c in plan.changes} == {
-        "repository.o/apps": Action.CREATE, "app": Action.CREATE}
+        "repository.o/apps": Action.CREATE, "app.x": Action.CREATE}
     assert [s.kind for s in plan.steps] == [
         StepKind.CHECKOUT, StepKind.STAGE, StepKind.INSTALL, StepKind.START,
         StepKind.VERIFY]
@@ -97,7 +98,7 @@ def test_first_apply_creates_repository_and_app() -> None:
 
 
 def test_unchanged_machine_is_a_noop_with_reasons() -> None:
-    plan = make_plan(Targets((repo(),), app()), observed(app_rec=installed()), now=NOW,
+    plan = make_plan(Targets((repo(),), (app(),)), observed(app_rec=installed()), now=NOW,
                      lpam_version="t")
     assert not plan.has_changes and plan.steps == []
     assert all(c.reason for c in plan.changes)
@@ -105,13 +106,13 @@ def test_unchanged_machine_is_a_noop_with_reasons() -> None:
 
 
 def test_branch_moved_is_an_update_but_unchanged_app_folder_is_not_touched() -> None:
-    changes = diff(Targets((repo(B),), app()), observed(app_rec=installed()))
+    changes = diff(Targets((repo(B),), (app(),)), observed(app_rec=installed()))
     assert changes[0].action is Action.UPDATE and "moved" in changes[0].reason
     assert changes[1].action is Action.NOOP
 
 
 def test_new_app_folder_replaces_generation_old_first() -> None:
-    plan = make_plan(Targets((repo(B),), app(tree=T2)), observed(app_rec=installed()), now=NOW,
+    plan = make_plan(Targets((repo(B),), (app(tree=T2),)), observed(app_rec=installed()), now=NOW,
                      lpam_version="t")
     kinds = [(s.kind, _generation(s)) for s in plan.steps]
     old, new = installed().generation, generation_id(T2, {})
@@ -121,40 +122,41 @@ def test_new_app_folder_replaces_generation_old_first() -> None:
         (StepKind.VERIFY, new)]
 
 
-def test_switch_app_is_replace_and_stops_old_before_installing_new() -> None:
-    targets = Targets((repo(),), app("y", tree=T2))
+def test_switch_app_deletes_the_old_and_stops_it_before_installing_new() -> None:
+    targets = Targets((repo(),), (app("y", tree=T2),))
     plan = make_plan(targets, observed(app_rec=installed("x")), now=NOW, lpam_version="t")
-    assert plan.changes[-1].action is Action.REPLACE
+    assert [(c.address, c.action) for c in plan.changes[-2:]] == [
+        ("app.x", Action.DELETE), ("app.y", Action.CREATE)]
     ids = [s.id for s in plan.steps]
     assert ids.index(f"stop:x@{installed().generation}") < ids.index(
         f"install:y@{generation_id(T2, {})}")
 
 
 def test_param_change_is_update_and_installed_not_running_only_starts() -> None:
-    assert actions(Targets((repo(),), app(params={"K": "2"})),
-                   observed(app_rec=installed(params={"K": "1"})))["app"] is Action.UPDATE
-    plan = make_plan(Targets((repo(),), app()), observed(app_rec=installed(running=False)),
+    assert actions(Targets((repo(),), (app(params={"K": "2"}),)),
+                   observed(app_rec=installed(params={"K": "1"})))["app.x"] is Action.UPDATE
+    plan = make_plan(Targets((repo(),), (app(),)), observed(app_rec=installed(running=False)),
                      now=NOW, lpam_version="t")
     assert [s.kind for s in plan.steps] == [StepKind.START]
 
 
 def test_app_null_deletes_and_removed_repository_is_cleaned_up_last() -> None:
-    plan = make_plan(Targets((), None), observed(app_rec=installed()), now=NOW, lpam_version="t")
+    plan = make_plan(Targets(()), observed(app_rec=installed()), now=NOW, lpam_version="t")
     assert [s.kind for s in plan.steps] == [StepKind.STOP, StepKind.UNINSTALL, StepKind.REMOVE]
     assert {c.action for c in plan.changes} == {Action.DELETE}
 
 
 def test_url_change_is_replace_and_drift_is_restored() -> None:
-    assert actions(Targets((repo(url="git://new/apps"),), None),
+    assert actions(Targets((repo(url="git://new/apps"),)),
                    observed())["repository.o/apps"] is Action.REPLACE
-    change = diff(Targets((repo(),), None), observed(head=C))[0]
+    change = diff(Targets((repo(),)), observed(head=C))[0]
     assert change.action is Action.UPDATE and "outside lpam" in change.reason
 
 
 def test_local_edits_warned_on_update() -> None:
-    change = diff(Targets((repo(B),), None), observed(edits=("a.py",)))[0]
+    change = diff(Targets((repo(B),)), observed(edits=("a.py",)))[0]
     assert change.warnings and "a.py" in change.warnings[0]
-    assert "a.py" in render(make_plan(Targets((repo(B),), None), observed(edits=("a.py",)),
+    assert "a.py" in render(make_plan(Targets((repo(B),)), observed(edits=("a.py",)),
                                       now=NOW, lpam_version="t"))
 
 
@@ -192,7 +194,7 @@ def test_cycle_is_an_error_naming_it() -> None:
 
 
 def test_saved_plan_refused_when_stale_or_edited() -> None:
-    plan = make_plan(Targets((repo(),), app()), observed(commit=None), now=NOW, lpam_version="t")
+    plan = make_plan(Targets((repo(),), (app(),)), observed(commit=None), now=NOW, lpam_version="t")
     check_plan(plan, lineage="L", serial=3, source="p")
     with pytest.raises(StalePlanError, match="serial 3, now 4"):
         check_plan(plan, lineage="L", serial=4, source="p")
@@ -204,17 +206,18 @@ def test_saved_plan_refused_when_stale_or_edited() -> None:
 
 
 def test_render_uses_terraform_symbols() -> None:
-    plan = make_plan(Targets((repo(),), app("y")), observed(app_rec=installed("x")), now=NOW,
+    plan = make_plan(Targets((repo(),), (app("y"),)), observed(app_rec=installed("x")), now=NOW,
                      lpam_version="t")
     text = render(plan)
-    assert "-/+ app: switch from x to y" in text
-    assert text.rstrip().endswith("Plan: 0 to add, 0 to change, 1 to replace, 0 to destroy.")
+    assert "  - app.x: app x is no longer desired: stopped and uninstalled" in text
+    assert "  + app.y: install y from o/apps" in text
+    assert text.rstrip().endswith("Plan: 1 to add, 0 to change, 0 to replace, 1 to destroy.")
 
 
 def test_missing_generation_folder_is_restaged_and_reinstalled() -> None:
     obs = observed(app_rec=installed())
     obs = Observed(record=obs.record, repositories=obs.repositories)  # folder deleted by hand
-    plan = make_plan(Targets((repo(),), app()), obs, now=NOW, lpam_version="t")
+    plan = make_plan(Targets((repo(),), (app(),)), obs, now=NOW, lpam_version="t")
     assert plan.changes[-1].action is Action.UPDATE and "missing" in plan.changes[-1].reason
     assert [s.kind for s in plan.steps] == [
         StepKind.STAGE, StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START,
@@ -233,7 +236,7 @@ def test_a_cut_off_script_is_finished_or_redone_never_assumed(
     status: str, kinds: list[StepKind]
 ) -> None:
     rec = installed().model_copy(update={"status": status})
-    plan = make_plan(Targets((repo(),), app()), observed(app_rec=rec), now=NOW, lpam_version="t")
+    plan = make_plan(Targets((repo(),), (app(),)), observed(app_rec=rec), now=NOW, lpam_version="t")
     assert [s.kind for s in plan.steps] == kinds
     assert plan.has_changes is bool(kinds)
     if kinds:
@@ -244,7 +247,7 @@ def test_a_cut_off_script_is_finished_or_redone_never_assumed(
 @pytest.mark.parametrize("status", ["starting", "running", "stopping"])
 def test_an_app_that_may_be_active_is_stopped_before_another_is_installed(status: str) -> None:
     rec = installed("x").model_copy(update={"status": status})
-    plan = make_plan(Targets((repo(),), app("y", tree=T2)), observed(app_rec=rec), now=NOW,
+    plan = make_plan(Targets((repo(),), (app("y", tree=T2),)), observed(app_rec=rec), now=NOW,
                      lpam_version="t")
     kinds = [s.kind for s in plan.steps if s.phase is Phase.CUTOVER]
     assert kinds == [StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START,
@@ -254,7 +257,7 @@ def test_an_app_that_may_be_active_is_stopped_before_another_is_installed(status
 @pytest.mark.parametrize("status", ["installing", "installed", "uninstalling"])
 def test_an_inactive_app_is_uninstalled_without_stop(status: str) -> None:
     rec = installed("x").model_copy(update={"status": status})
-    plan = make_plan(Targets((repo(),), app("y", tree=T2)), observed(app_rec=rec), now=NOW,
+    plan = make_plan(Targets((repo(),), (app("y", tree=T2),)), observed(app_rec=rec), now=NOW,
                      lpam_version="t")
     kinds = [s.kind for s in plan.steps if s.phase is Phase.CUTOVER]
     assert kinds == [StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START, StepKind.VERIFY]
@@ -265,7 +268,7 @@ def test_strays_found_on_disk_are_stopped_and_uninstalled_before_any_install() -
                                        params={"K": "1"})])
     obs = Observed(record=record, repositories={},
                    generations=frozenset({GenerationKey.of("x", installed("x").generation)}))
-    plan = make_plan(Targets((repo(),), app("y", tree=T2)), obs, now=NOW, lpam_version="t")
+    plan = make_plan(Targets((repo(),), (app("y", tree=T2),)), obs, now=NOW, lpam_version="t")
     ids = [s.id for s in plan.steps]
     stray = f"x@{installed('x').generation} (found on disk)"
     assert ids.index(f"stop:{stray}") < ids.index(f"uninstall:{stray}") < ids.index(
@@ -276,7 +279,7 @@ def test_strays_found_on_disk_are_stopped_and_uninstalled_before_any_install() -
     change = next(c for c in plan.changes if c.address.startswith("stray."))
     assert change.action is Action.DELETE and "no state record" in change.reason
     # the same app wanted again: it is still cycled through its own scripts first
-    same = make_plan(Targets((repo(),), app("x")), obs, now=NOW, lpam_version="t")
+    same = make_plan(Targets((repo(),), (app("x"),)), obs, now=NOW, lpam_version="t")
     assert [s.kind for s in same.steps if s.phase is Phase.CUTOVER] == [
         StepKind.STOP, StepKind.UNINSTALL, StepKind.INSTALL, StepKind.START, StepKind.VERIFY]
 
@@ -284,10 +287,10 @@ def test_strays_found_on_disk_are_stopped_and_uninstalled_before_any_install() -
 def test_an_app_name_that_is_not_its_folder_name_is_not_reinstalled() -> None:
     rec = installed("alpha.")  # lives in generations/alpha/
     obs = Observed(record=StateRecord(lineage="L", serial=3, repositories=[
-        RepositoryRecord(key="o/apps", url="git://h/apps", ref="main", commit=A)], app=rec),
+        RepositoryRecord(key="o/apps", url="git://h/apps", ref="main", commit=A)], apps=[rec]),
         repositories={"o/apps": RepoObserved(key="o/apps", present=True, head=A)},
         generations=frozenset({GenerationKey("alpha", rec.generation)}))
-    plan = make_plan(Targets((repo(),), app("alpha.")), obs, now=NOW, lpam_version="t")
+    plan = make_plan(Targets((repo(),), (app("alpha."),)), obs, now=NOW, lpam_version="t")
     assert plan.steps == []
 
 
@@ -298,23 +301,24 @@ def test_live_state_refreshes_the_record_both_ways() -> None:
     from reconciler.base.unit import UnitState
 
     running = installed().model_copy(update={"service": "can"})
-    down = replace(observed(app_rec=running), live=UnitState("can", known=True,
-                                                             active="inactive"))
-    plan = make_plan(Targets((repo(),), app()), down, now=NOW, lpam_version="t")
+    down = replace(observed(app_rec=running), lives={"x": UnitState("can", known=True,
+                                                                    active="inactive")})
+    plan = make_plan(Targets((repo(),), (app(),)), down, now=NOW, lpam_version="t")
     assert [s.kind for s in plan.steps] == [StepKind.START]
-    change = next(c for c in plan.changes if c.address == "app")
+    change = next(c for c in plan.changes if c.address == "app.x")
     assert "is not running (unit can inactive): start" in change.reason
     # installed, yet its unit is active: it may hold the bus, so it is stopped before a switch
     stopped = installed(running=False).model_copy(update={"service": "can"})
-    up = replace(observed(app_rec=stopped), live=UnitState("can", known=True, active="active"))
-    switch = make_plan(Targets((repo(),), app("y", tree=T2)), up, now=NOW, lpam_version="t")
+    up = replace(observed(app_rec=stopped),
+                 lives={"x": UnitState("can", known=True, active="active")})
+    switch = make_plan(Targets((repo(),), (app("y", tree=T2),)), up, now=NOW, lpam_version="t")
     kinds = [s.kind for s in switch.steps if s.phase is Phase.CUTOVER]
     assert kinds[:2] == [StepKind.STOP, StepKind.UNINSTALL]
-    same = make_plan(Targets((repo(),), app()), up, now=NOW, lpam_version="t")
+    same = make_plan(Targets((repo(),), (app(),)), up, now=NOW, lpam_version="t")
     assert same.steps == [] and "started outside lpam" in same.changes[-1].warnings[0]
     # a unit this manager cannot know changes nothing: the scripts' word stands
-    unknown = replace(observed(app_rec=running), live=UnitState("can", known=False))
-    assert make_plan(Targets((repo(),), app()), unknown, now=NOW, lpam_version="t").steps == []
+    unknown = replace(observed(app_rec=running), lives={"x": UnitState("can", known=False)})
+    assert make_plan(Targets((repo(),), (app(),)), unknown, now=NOW, lpam_version="t").steps == []
 
 
 def test_an_lpam_app_is_stopped_only_when_its_unit_may_run() -> None:
@@ -328,7 +332,7 @@ def test_an_lpam_app_is_stopped_only_when_its_unit_may_run() -> None:
                    record=StateRecord(strays=[lpam_app]))
 
     def cutover(live: dict[str, UnitState]) -> list[StepKind]:
-        plan = make_plan(Targets((), app()), replace(base, stray_live=live), now=NOW,
+        plan = make_plan(Targets((), (app(),)), replace(base, stray_live=live), now=NOW,
                          lpam_version="t")
         return [s.kind for s in plan.steps if "pandarecord" in s.id]
 

@@ -16,15 +16,16 @@ from reconciler.workflow.logs import Shown, new_output, overlap
 from reconciler.workflow.machine import Machine
 from schemas.operator import OperatorAction
 from schemas.record import HistoryEntry
+from tests.records import sole
 from tests.unit.test_gate_execution import running_x
 
 
 def test_history_marks_the_installed_generation_as_applied(tmp_path: Path) -> None:
     world = running_x(tmp_path)
     record = read_record(world.layout)
-    assert record.app is not None
-    now = HistoryEntry.of(record.app, time="t2", result="applied")
-    failed = HistoryEntry.of(record.app, time="t3", result="failed")
+    assert len(record.apps) == 1
+    now = HistoryEntry.of(sole(record), time="t2", result="applied")
+    failed = HistoryEntry.of(sole(record), time="t3", result="failed")
     other = now.model_copy(update={"generation": "other", "time": "t1"})
     write_record(world.layout, record.model_copy(update={"history": [other, now, failed]}))
     assert [(m.entry.time, m.current) for m in history(world.layout)] == [

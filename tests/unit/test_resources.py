@@ -69,8 +69,8 @@ def resolved(catalog: str, folders: dict[str, dict[str, str]], app: str) -> froz
         {"version": 2, "repositories": [{"url": URL, "ref": COMMIT}], "apps": [{"name": app}]})
     targets = resolve(desired, base_dir=Path("."), store=store, fetch=Fetch.CHECKOUT,
                       default_user="root")
-    assert targets.app is not None
-    return targets.app.resources
+    assert [a.name for a in targets.apps] == [app]
+    return targets.apps[0].resources
 
 
 def test_the_unit_a_service_file_names_is_a_resource() -> None:

@@ -24,6 +24,7 @@ from reconciler.engine.execution.steps import RUNNERS
 from reconciler.engine.records.state import read_record
 from schemas.plan import Phase, StepKind
 from schemas.record import StateRecord
+from tests.records import sole
 from tests.steps_v1 import ArgValue, step
 
 URL, KEY, COMMIT = "git://h/apps", "lab/apps", "a" * 40
@@ -83,7 +84,7 @@ def test_start_sh_exiting_0_is_not_running_when_its_unit_is_not_active(tmp_path:
     install(ctx, args(service="can"))
     with pytest.raises(HealthError, match=r"start\.sh exited 0 but unit can is inactive"):
         run(StepKind.START, ctx, args(service="can"))
-    app = read_record(ctx.layout).app
+    app = sole(read_record(ctx.layout))
     assert app is not None and app.status == "starting"  # may be active: stopped on rollback
     assert scripts.calls == ["x:install.sh", "x:start.sh"]
 
@@ -102,7 +103,7 @@ def test_start_sh_counts_once_its_unit_is_active(tmp_path: Path) -> None:
 
     scripts.run = start_the_unit  # type: ignore[method-assign]
     run(StepKind.START, ctx, args(service="can"))
-    app = read_record(ctx.layout).app
+    app = sole(read_record(ctx.layout))
     assert app is not None and app.status == "running"
 
 
@@ -111,7 +112,7 @@ def test_a_unit_this_manager_cannot_know_leaves_the_scripts_word(tmp_path: Path)
     install(ctx, args(service="can"))
     run(StepKind.START, ctx, args(service="can"))
     run(StepKind.VERIFY, ctx, args(service="can"))
-    app = read_record(ctx.layout).app
+    app = sole(read_record(ctx.layout))
     assert app is not None and app.status == "running"
 
 
@@ -124,7 +125,7 @@ def test_stop_sh_exiting_0_while_its_unit_still_runs_stops_the_cutover(tmp_path:
     with pytest.raises(StepError, match="unit can is still active") as info:
         run(StepKind.STOP, ctx, args(service="can"))
     assert not isinstance(info.value, HealthError)
-    app = read_record(ctx.layout).app
+    app = sole(read_record(ctx.layout))
     assert app is not None and app.status == "stopping"  # never claimed stopped
 
 
@@ -147,7 +148,7 @@ def test_a_scriptless_app_is_a_unit_lpam_writes_and_drives(tmp_path: Path) -> No
     run(StepKind.UNINSTALL, ctx, values)
     assert "lpam-app-x" not in services.units and not place.exists()
     assert scripts.calls == []  # no script ran: it has none
-    assert read_record(ctx.layout).app is None
+    assert not read_record(ctx.layout).apps
 
 
 def test_a_program_in_the_app_folder_is_run_from_there(tmp_path: Path) -> None:
@@ -207,7 +208,7 @@ def test_a_change_of_params_rewrites_the_unit_without_install(tmp_path: Path) ->
     install(ctx, values)
     run(StepKind.CONFIGURE, ctx, {**values, "params": {"RATE": "9"}})
     assert services.units["lpam-app-x"].environment["RATE"] == "9"
-    app = read_record(ctx.layout).app
+    app = sole(read_record(ctx.layout))
     assert app is not None and app.params == {"RATE": "9"}
     assert [c for c in services.calls if c[0] == "install"] == [
         ("install", "lpam-app-x"), ("install", "lpam-app-x")]

@@ -27,8 +27,8 @@ def test_empty_machine_then_lineage_and_serial(tmp_path: Path) -> None:
 
 def test_newer_or_corrupt_record_is_refused_by_name(tmp_path: Path) -> None:
     layout = Layout(tmp_path)
-    write_atomic(layout.state_record, json.dumps({"version": 6, "serial": 1}))
-    with pytest.raises(VersionError, match="6"):
+    write_atomic(layout.state_record, json.dumps({"version": 7, "serial": 1}))
+    with pytest.raises(VersionError, match="7"):
         read_record(layout)
     write_atomic(layout.state_record, '{"version": 1,\n  "serial": }')
     with pytest.raises(ConfigError) as info:
@@ -53,19 +53,19 @@ def _app(status: AppStatus, run: str | None) -> AppRecord:
 def test_a_script_that_finished_after_lpam_died_is_accounted_for(
     status: AppStatus, code: int | None, settled: str | None
 ) -> None:
-    record = StateRecord(lineage="L", serial=2, app=_app(status, "a" * 32))
+    record = StateRecord(lineage="L", serial=2, apps=[_app(status, "a" * 32)])
     result = settle(record, exit_code=lambda run: code if run == "a" * 32 else None)
-    assert (result.app.status if result.app else None) == settled
+    assert [a.status for a in result.apps] == ([settled] if settled else [])
     assert result.serial == 2  # reading never counts as a write
 
 
 def test_settling_reads_the_guard_s_exit_file(tmp_path: Path) -> None:
     layout = Layout(tmp_path)
-    write_record(layout, StateRecord(app=_app("starting", "b" * 32)))
-    assert read_record(layout).app.status == "starting"  # type: ignore[union-attr]
+    write_record(layout, StateRecord(apps=[_app("starting", "b" * 32)]))
+    assert [a.status for a in read_record(layout).apps] == ["starting"]
     layout.runs.mkdir(parents=True)
     layout.run_result("b" * 32).write_text("0\n")
-    assert read_record(layout).app.status == "running"  # type: ignore[union-attr]
+    assert [a.status for a in read_record(layout).apps] == ["running"]
 
 
 @pytest.mark.parametrize("damage", ["utf8", "directory", "deep", "symlink", "huge"])

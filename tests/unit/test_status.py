@@ -70,7 +70,7 @@ def record(app: str | None = "alpha", state: AppStatus = "running", *,
     return StateRecord(
         repositories=[RepositoryRecord(key="apps", url="git://x/apps.git", ref=None,
                                        commit=NEW, applied=NEW)],
-        app=installed, strays=strays or [])
+        apps=[] if installed is None else [installed], strays=strays or [])
 
 
 @pytest.fixture

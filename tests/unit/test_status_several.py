@@ -24,7 +24,7 @@ from reconciler.adapters.services.memory import MemoryServices
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import Layout
 from reconciler.base.unit import UnitState
-from reconciler.core.planning.lifecycle import operator_steps
+from reconciler.core.planning.ensemble import operator_steps
 from reconciler.core.planning.model import GenerationKey
 from reconciler.core.publication import fingerprint, read_status_file, status_file
 from reconciler.engine.records.state import write_record

@@ -24,6 +24,7 @@ from reconciler.engine.execution.steps import RUNNERS
 from reconciler.engine.records.state import read_record, write_record
 from schemas.plan import Phase, StepKind
 from schemas.record import AppRecord, StateRecord, Stray
+from tests.records import sole
 from tests.steps_v1 import step
 
 URL, KEY, COMMIT = "git://h/apps", "lab/apps", "a" * 40
@@ -62,14 +63,14 @@ def run(kind: StepKind, ctx: Context, **args: str | dict[str, str] | None) -> No
 
 @pytest.mark.parametrize("other", ["installed app", "stray"])
 def test_install_is_refused_while_another_app_is_installed(tmp_path: Path, other: str) -> None:
-    record = (StateRecord(lineage="L", app=running("y")) if other == "installed app" else
+    record = (StateRecord(lineage="L", apps=[running("y")]) if other == "installed app" else
               StateRecord(strays=[Stray(name="y", generation=generation_id(TREES["y"], {}))]))
     ctx, scripts = machine(tmp_path, record)
     run(StepKind.STAGE, ctx, **wanted("x"))
     with pytest.raises(StepError, match="refusing to install x: y is still installed"):
         run(StepKind.INSTALL, ctx, **wanted("x"))
     assert scripts.calls == []
-    assert read_record(ctx.layout).app == record.app
+    assert read_record(ctx.layout).apps == record.apps
 
 
 def test_a_staged_folder_whose_content_is_not_the_planned_one_is_refused(
@@ -87,18 +88,18 @@ def test_a_stop_is_written_down_before_and_after_stop_sh(tmp_path: Path) -> None
     run(StepKind.STAGE, ctx, **wanted("x"))
     run(StepKind.INSTALL, ctx, **wanted("x"))
     run(StepKind.START, ctx, **wanted("x"))
-    assert read_record(ctx.layout).app is not None
+    assert len(read_record(ctx.layout).apps) == 1
     seen: list[str | None] = []
     real_run = scripts.run
 
     def spy(*args: object, **kwargs: object) -> bool:
-        app = read_record(ctx.layout).app
+        app = sole(read_record(ctx.layout))
         seen.append(app.status if app else None)
         return real_run(*args, **kwargs)  # type: ignore[arg-type]
 
     scripts.run = spy  # type: ignore[method-assign]
     run(StepKind.STOP, ctx, **wanted("x"))
-    after = read_record(ctx.layout).app
+    after = sole(read_record(ctx.layout))
     assert seen == ["stopping"]  # on disk while stop.sh ran
     assert after is not None and after.status == "installed" and not after.running
     assert scripts.calls == ["x:install.sh", "x:start.sh", "x:stop.sh"]

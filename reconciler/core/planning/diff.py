@@ -6,9 +6,11 @@ every no-op says why nothing needs doing, so a user reading the plan can trust i
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from reconciler.base.unit import UnitState
 from reconciler.core.planning import dependencies
-from reconciler.core.planning.ensemble import one_app_world, pairs
+from reconciler.core.planning.ensemble import pairs
 from reconciler.core.planning.lifecycle import same_generation, strays_refreshed
 from reconciler.core.planning.model import (
     UNKNOWN,
@@ -22,11 +24,12 @@ from reconciler.core.planning.model import (
 from schemas.catalog import CATALOG_FILE
 from schemas.names import is_hex_commit
 from schemas.plan import Action, Change
-from schemas.record import AppRecord, RepositoryRecord, StateRecord
+from schemas.record import AppRecord, RepositoryRecord, Stray
 
 
 def diff(targets: Targets, observed: Observed) -> list[Change]:
-    """Every repository (desired first, then removed ones) and the app, in a stable order."""
+    """Every repository (desired first, then removed ones), every dependency, every stray
+    and every app (installed or desired), in a stable order."""
     changes = [_repository(t, observed) for t in targets.repositories]
     wanted = {t.key for t in targets.repositories}
     changes += [
@@ -40,20 +43,12 @@ def diff(targets: Targets, observed: Observed) -> list[Change]:
         for rec in sorted(observed.record.repositories, key=lambda r: r.key)
         if rec.key not in wanted
     ]
-    for number, app in enumerate(targets.apps):
-        changes += dependencies.changes(app, observed.deps_of(app, number == 0))
-    if not one_app_world(observed.record, targets.apps):
-        changes += _strays(strays_refreshed(observed.record, observed.stray_live))
-        return _once(changes + _apps(targets, observed))
-    if observed.adopt is not None and targets.app is not None:
-        strays = strays_refreshed(observed.record, observed.stray_live)
-        others = [s for s in strays.strays if s.name != observed.adopt]
-        changes += _strays(strays.model_copy(update={"strays": others}))
-        changes.append(_adoption(targets.app, observed.adopt))
-        return changes
-    changes += _strays(strays_refreshed(observed.record, observed.stray_live))
-    changes.append(_app(targets.app, observed.record.app, observed.generations, observed.live))
-    return changes
+    for app in targets.apps:
+        changes += dependencies.changes(app, observed.deps_by.get(app.name))
+    strays = strays_refreshed(observed.record, observed.stray_live)
+    adopted = set(observed.adopt.values())
+    changes += _strays([s for s in strays.strays if s.name not in adopted])
+    return _once(changes + _apps(targets, observed))
 
 
 def _once(changes: list[Change]) -> list[Change]:
@@ -65,12 +60,16 @@ def _once(changes: list[Change]) -> list[Change]:
 
 
 def _apps(targets: Targets, observed: Observed) -> list[Change]:
-    """Several apps: one change per app (`app.<name>`), each against the installed app of
-    its name; one that leaves says which arriving app takes over what it claims."""
+    """One change per app (`app.<name>`), each against the installed app of its name; one
+    that leaves says which arriving app takes over what it claims; one that LPAM installed
+    as it is desired is adopted."""
     found = []
     for rec, t in pairs(observed.record, targets.apps):
         name = t.name if t is not None else rec.name if rec is not None else ""
-        change = _app(t, rec, observed.generations, observed.live_of(name))
+        if rec is None and t is not None and t.name in observed.adopt:
+            found.append(_adoption(t, observed.adopt[t.name]))
+            continue
+        change = _app(t, rec, observed.generations, observed.lives.get(name))
         if t is None and rec is not None:
             heirs = [a.name for a in targets.apps if a.resources & rec.claims]
             reason = f"app {rec.name} is no longer desired: stopped and uninstalled"
@@ -78,14 +77,14 @@ def _apps(targets: Targets, observed: Observed) -> list[Change]:
                 reason += (f" before {', '.join(heirs)}, which claims what it claims "
                            f"({', '.join(sorted(rec.claims))}), is installed")
             change = change.model_copy(update={"reason": reason})
-        found.append(change.model_copy(update={"address": f"app.{name}"}))
+        found.append(change)
     return found
 
 
 def _adoption(t: AppTarget, stray: str) -> Change:
     """The app LPAM installed is the desired one as it is: taken over in place."""
     return Change(
-        address="app", action=Action.CREATE,
+        address=f"app.{t.name}", action=Action.CREATE,
         after=_app_fields(t.name, t.repository, t.commit, t.params, None),
         reason=f"{t.name}, installed by LPAM as {stray}, is the desired app as it is (same "
         f"files as {t.repository} at {short(t.commit)}): adopted in place — no script runs "
@@ -196,7 +195,7 @@ _CUT_OFF = {
 }
 
 
-def _strays(record: StateRecord) -> list[Change]:
+def _strays(strays: Sequence[Stray]) -> list[Change]:
     return [
         Change(
             address=f"stray.{s.name}@{s.generation}", action=Action.DELETE,
@@ -208,42 +207,43 @@ def _strays(record: StateRecord) -> list[Change]:
             + ("uninstalled" if s.stopped else "stopped and uninstalled")
             + " with its own scripts before any app is installed",
         )
-        for s in record.strays
+        for s in strays
     ]
 
 
 def _app(t: AppTarget | None, rec: AppRecord | None,
          generations: frozenset[GenerationKey], live: UnitState | None = None) -> Change:
+    """The change of one app: `t` wanted, `rec` the installed app of its name."""
     before = (
         _app_fields(rec.name, rec.repository, rec.commit, rec.params, rec.status) if rec else None
     )
     after = _app_fields(t.name, t.repository, t.commit, t.params, None) if t else None
-    if t is None and rec is None:
-        return Change(address="app", action=Action.NOOP, reason="no app desired, none installed")
     if t is None:
-        assert rec is not None
+        assert rec is not None, "a pair has an installed app, a wanted one or both"
         return Change(
-            address="app", action=Action.DELETE, before=before,
-            reason=f"app {rec.name} is no longer desired (app: null): stopped and uninstalled",
+            address=f"app.{rec.name}", action=Action.DELETE, before=before,
+            reason=f"app {rec.name} is no longer desired: stopped and uninstalled",
         )
+    address = f"app.{t.name}"
     if rec is None:
         return Change(
-            address="app", action=Action.CREATE, after=after,
+            address=address, action=Action.CREATE, after=after,
             reason=f"install {t.name} from {t.repository} at {short(t.commit)}",
         )
-    if t.name == rec.name and t.tree is None and t.repository == UNKNOWN:
+    if t.tree is None and t.repository == UNKNOWN:
         # Offline, with several repositories not fetched yet: which one offers the app
-        # is unknown, and claiming a switch "from X to X" would be a guess.
+        # is unknown, and claiming a move "from X to X" would be a guess.
         return Change(
-            address="app", action=Action.UPDATE, before=before, after=after,
+            address=address, action=Action.UPDATE, before=before, after=after,
             reason=f"{t.name}: which repository offers it, and whether its folder changed, "
             "are known after fetch",
         )
-    if (rec.name, rec.repository) != (t.name, t.repository):
+    if rec.repository != t.repository:
         return Change(
-            address="app", action=Action.REPLACE, before=before, after=after,
-            reason=f"switch from {rec.name} to {t.name}: {rec.name} is stopped and "
-            f"uninstalled before {t.name} is installed",
+            address=address, action=Action.REPLACE, before=before, after=after,
+            reason=f"{t.name} now comes from {t.repository} (installed from "
+            f"{rec.repository}): the installed one is stopped and uninstalled before the "
+            "new one is installed",
         )
     if t.tree is None:
         same_folder = t.commit == rec.commit
@@ -255,7 +255,7 @@ def _app(t: AppTarget | None, rec: AppRecord | None,
     same_how = (rec.command, rec.launch) == (command, t.launch)
     if same_folder and same_how and not same_generation(rec, t, generations):
         return Change(
-            address="app", action=Action.UPDATE, before=before, after=after,
+            address=address, action=Action.UPDATE, before=before, after=after,
             reason=f"{t.name}: its installed folder is missing from disk: copied out of git "
             "again and reinstalled",
         )
@@ -265,7 +265,7 @@ def _app(t: AppTarget | None, rec: AppRecord | None,
     if rec.params != t.params:
         what.append("parameters changed")
     return Change(
-        address="app", action=Action.UPDATE, before=before, after=after,
+        address=address, action=Action.UPDATE, before=before, after=after,
         reason=f"{t.name}: {', '.join(what)}; the old generation is stopped and uninstalled "
         "before the new one is installed",
     )
@@ -277,8 +277,8 @@ def _same_generation(
 ) -> Change:
     """The installed generation is the wanted one: parameters, drift, holds, cut-off scripts."""
     def update(reason: str) -> Change:
-        return Change(address="app", action=Action.UPDATE, before=before, after=after,
-                      reason=f"{t.name} {reason}")
+        return Change(address=f"app.{t.name}", action=Action.UPDATE, before=before,
+                      after=after, reason=f"{t.name} {reason}")
 
     if (rec.params, rec.user) != (t.params, t.user):
         changed = sorted(k for k in set(rec.params) | set(t.params)
@@ -291,7 +291,7 @@ def _same_generation(
         if rec.status == "installed" and not runs:
             held = (f"{t.name} was stopped by an operator (`lpam stop`) and stays stopped "
                     "until `lpam start` or a change of the desired state")
-            return Change(address="app", action=Action.NOOP, before=before, after=after,
+            return Change(address=f"app.{t.name}", action=Action.NOOP, before=before, after=after,
                           reason=held, warnings=[held])
         if rec.status in ("installing", "uninstalling"):
             return update(f"{_CUT_OFF[rec.status].split(':')[0]}: installed again; it stays "
@@ -304,7 +304,7 @@ def _same_generation(
     if rec.status == "running" and live is not None and live.known and not live.running:
         return update(f"is not running ({live.describe()}): start")
     if rec.status == "installed" and live is not None and live.running:
-        return Change(address="app", action=Action.NOOP, before=before, after=after,
+        return Change(address=f"app.{t.name}", action=Action.NOOP, before=before, after=after,
                       reason=f"{t.name} runs ({live.describe()}), though lpam did not "
                       "start it", warnings=[f"{t.name} was started outside lpam"])
     unproven = ("; it has not passed its health check since it was installed (the check "
@@ -313,6 +313,6 @@ def _same_generation(
         moved = "" if t.commit == rec.commit else f"; repository now at {short(t.commit)}"
         if unproven:
             return update(f"is running{unproven}")
-        return Change(address="app", action=Action.NOOP, before=before, after=after,
+        return Change(address=f"app.{t.name}", action=Action.NOOP, before=before, after=after,
                       reason=f"{t.name} installed and running, app folder unchanged{moved}")
     return update(_CUT_OFF[rec.status] + unproven)

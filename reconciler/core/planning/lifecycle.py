@@ -30,7 +30,7 @@ generation is staged (during preparation), installed and started.
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Mapping, Sequence
 
 from reconciler.base.unit import UnitState
 from reconciler.core.planning.model import UNKNOWN, AppTarget, GenerationKey, HealthTarget
@@ -50,7 +50,7 @@ from schemas.plan import (
     UninstallStep,
     VerifyStep,
 )
-from schemas.record import ACTIVE, AppRecord, StateRecord
+from schemas.record import ACTIVE, AppRecord, StateRecord, Stray
 
 _SAME_GENERATION: dict[str, tuple[StepKind, ...]] = {
     "running": (),
@@ -106,26 +106,22 @@ def _settings(app: AppRecord | AppTarget) -> tuple[dict[str, str], str | None]:
 
 
 def app_steps(
-    record: StateRecord, new: AppTarget | None, generations: frozenset[GenerationKey], *,
-    start: bool = True, verify: bool = True, adopt: str | None = None,
+    old: AppRecord | None, new: AppTarget | None, generations: frozenset[GenerationKey], *,
+    start: bool = True, verify: bool = True,
 ) -> list[Step]:
-    """The steps that take the record's app (and strays) to `new`, started if `start`
-    (and its health checked if `verify`). An app an operator stopped (`held`) stays
-    stopped while it is the one wanted. `adopt`: the app LPAM installed that is `new`
-    as it is (engine/observe/adoption.py) — recorded as lpam's, not reinstalled or restarted."""
-    if adopt is not None and new is not None and record.app is None:
-        return _adopted(record, new, adopt, generations, start=start, verify=verify)
-    old = record.app
-    steps = stray_steps(record)
+    """The steps of one app: from the installed app of its name (`old`) to `new`, started
+    if `start` (and its health checked if `verify`). An app an operator stopped (`held`)
+    stays stopped while it is the one wanted."""
     if new is not None and old is not None and same_generation(old, new, generations):
         target = f"{old.name}@{old.generation}"
         if keeps(old, new, generations):
-            return steps + _resume(old, new, target, start=start, verify=verify)
-        return steps + _reconfigure(old, new, target, start=start, verify=verify)
+            return _resume(old, new, target, start=start, verify=verify)
+        return _reconfigure(old, new, target, start=start, verify=verify)
+    steps: list[Step] = []
     gen = (new.generation or UNKNOWN) if new is not None else None
     if new is not None and gen is not None and GenerationKey.of(new.name, gen) not in generations:
-        steps.insert(0, on(StepKind.STAGE, f"{new.name}@{gen}", generation_of(new, gen),
-                           good=new.proven, phase=Phase.PREPARE))
+        steps.append(on(StepKind.STAGE, f"{new.name}@{gen}", generation_of(new, gen),
+                        good=new.proven, phase=Phase.PREPARE))
     if old is not None:
         target = f"{old.name}@{old.generation}"
         if old.status in ACTIVE:
@@ -139,21 +135,19 @@ def app_steps(
     return steps
 
 
-def _adopted(record: StateRecord, new: AppTarget, adopt: str,
-             generations: frozenset[GenerationKey], *, start: bool,
-             verify: bool) -> list[Step]:
-    """Take over LPAM's app in place: its generation staged from git (same content as
-    LPAM's folder), then recorded as installed — running if its unit runs — with no script;
-    started only if it was not running. Other strays are stopped and uninstalled first."""
-    stray = next(s for s in record.strays if s.name == adopt)
+def adopted_steps(stray: Stray, new: AppTarget, generations: frozenset[GenerationKey], *,
+                  start: bool, verify: bool) -> list[Step]:
+    """Take over LPAM's app in place (engine/observe/adoption.py found it to be `new` as
+    it is): its generation staged from git (same content as LPAM's folder), then recorded
+    as installed — running if its unit runs — with no script; started only if it was not
+    running."""
     assert stray.folder is not None, "engine/observe/adoption.py adopts only an app LPAM installed"
-    others = record.model_copy(update={"strays": [s for s in record.strays if s is not stray]})
-    steps = stray_steps(others)
     gen = new.generation or UNKNOWN
     target = f"{new.name}@{gen}"
+    steps: list[Step] = []
     if GenerationKey.of(new.name, gen) not in generations:
-        steps.insert(0, on(StepKind.STAGE, target, generation_of(new, gen), good=new.proven,
-                           phase=Phase.PREPARE))
+        steps.append(on(StepKind.STAGE, target, generation_of(new, gen), good=new.proven,
+                        phase=Phase.PREPARE))
     steps.append(AdoptStep(id=step_id(StepKind.ADOPT, target), phase=Phase.CUTOVER,
                            app=generation_of(new, gen), folder=stray.folder,
                            running=not stray.stopped))
@@ -222,9 +216,11 @@ def _checks(health: HealthTarget) -> bool:
     return health.settle_seconds > 0 or health.command is not None or bool(health.can_ids)
 
 
-def stray_steps(record: StateRecord) -> list[Step]:
+def stray_steps(strays: Sequence[Stray]) -> list[Step]:
+    """Each stray stopped (unless it is known to be stopped) and uninstalled with its own
+    scripts."""
     steps: list[Step] = []
-    for stray in record.strays:
+    for stray in strays:
         found = "taken over from LPAM" if stray.folder is not None else "found on disk"
         target = f"{stray.name}@{stray.generation} ({found})"
         found_as = StrayGeneration(name=stray.name, generation=stray.generation,
@@ -272,20 +268,18 @@ def target_of(app: AppRecord) -> AppTarget:
                      resources=app.claims, proven=app.good)
 
 
-def refreshed(record: StateRecord, live: UnitState | None,
-              stray_live: dict[str, UnitState] | None = None,
-              lives: dict[str, UnitState] | None = None) -> StateRecord:
-    """The record as the service manager sees the app now (Terraform's refresh: the record
-    stays the prior state, this is the one planned from). An app recorded as running whose
-    unit the manager knows and reports not active has stopped behind lpam's back (a crash,
-    a reboot, someone's `systemctl stop`): it is planned as installed, so it is started.
-    One recorded as installed whose unit is active may hold the bus: planned as running,
-    so it is stopped before anything else is installed. `live` is the one-app world's
-    only app's unit; `lives` each app's, by name."""
+def refreshed(record: StateRecord, lives: Mapping[str, UnitState],
+              stray_live: Mapping[str, UnitState] | None = None) -> StateRecord:
+    """The record as the service manager sees each app now (Terraform's refresh: the
+    record stays the prior state, this is the one planned from). An app recorded as
+    running whose unit the manager knows and reports not active has stopped behind lpam's
+    back (a crash, a reboot, someone's `systemctl stop`): it is planned as installed, so it
+    is started. One recorded as installed whose unit is active may hold the bus: planned
+    as running, so it is stopped before anything else is installed. `lives`: each
+    installed app's unit, by name."""
     record = strays_refreshed(record, stray_live or {})
     for app in record.apps:
-        seen = (lives or {}).get(app.name, live if len(record.apps) == 1 else None)
-        record = record.with_app(app.name, _refreshed_app(app, seen))
+        record = record.with_app(app.name, _refreshed_app(app, lives.get(app.name)))
     return record
 
 
@@ -305,27 +299,7 @@ def _refreshed_app(app: AppRecord, live: UnitState | None) -> AppRecord:
     return app.model_copy(update={"status": status})
 
 
-def operator_steps(record: StateRecord, action: OperatorAction,
-                   generations: frozenset[GenerationKey], *,
-                   names: Collection[str] | None = None) -> list[Step]:
-    """`lpam start|stop|restart` on the installed apps `names` (None: every one), by the
-    same rules as any plan: a script that was cut off is finished first, and nothing is
-    started beside a stray. The record is restricted to the chosen apps and planned as a
-    set (core/planning/ensemble.py), each app kept at its own generation: no other app's step
-    can be among them, and one chosen app is the one-app world's plan exactly."""
-    from reconciler.core.planning.ensemble import set_steps  # it builds on this module
-
-    chosen = [a for a in record.apps if names is None or a.name in names]
-    if not chosen:
-        return []
-    wanted = [target_of(a) for a in chosen]
-    operated = [_operated(a, action) for a in chosen]
-    restricted = record.model_copy(update={"apps": operated})
-    return set_steps(restricted, wanted, generations, start=action != OperatorAction.STOP,
-                     verify=False)
-
-
-def _operated(app: AppRecord, action: OperatorAction) -> AppRecord:
+def operated(app: AppRecord, action: OperatorAction) -> AppRecord:
     """The app as an operator's command plans it: a stop keeps it as it is (its hold, once
     written, keeps it stopped); a start ends the hold; a restart of an app that may run
     first finishes a stop."""
@@ -336,7 +310,7 @@ def _operated(app: AppRecord, action: OperatorAction) -> AppRecord:
     return app.model_copy(update={"held": False})
 
 
-def strays_refreshed(record: StateRecord, live: dict[str, UnitState]) -> StateRecord:
+def strays_refreshed(record: StateRecord, live: Mapping[str, UnitState]) -> StateRecord:
     """An app LPAM installed counts as running only if its unit is active: one whose unit
     its manager reports inactive needs no stop, only its uninstall."""
     strays = [s.model_copy(update={"stopped": True})

@@ -185,24 +185,13 @@ class AppTarget:
         return None if self.path is None else app_folder(self.path)
 
 
-@dataclass(frozen=True, init=False)
+@dataclass(frozen=True)
 class Targets:
-    """The desired repositories and apps, resolved. `Targets(repos, app)` is the one-app
-    world (desired state version 1); `apps=` gives several."""
+    """The desired repositories and apps, resolved: a set of apps keyed by name, in the
+    desired state's order (one app is a set of one)."""
 
     repositories: tuple[RepoTarget, ...]
-    apps: tuple[AppTarget, ...]
-
-    def __init__(self, repositories: tuple[RepoTarget, ...], app: AppTarget | None = None,
-                 *, apps: tuple[AppTarget, ...] | None = None) -> None:
-        object.__setattr__(self, "repositories", repositories)
-        object.__setattr__(self, "apps", apps if apps is not None else
-                           (() if app is None else (app,)))
-
-    @property
-    def app(self) -> AppTarget | None:
-        """The first desired app (the only one in the one-app world)."""
-        return self.apps[0] if self.apps else None
+    apps: tuple[AppTarget, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -218,28 +207,21 @@ class RepoObserved:
 
 @dataclass(frozen=True)
 class Observed:
+    """What the read-only probes saw: the state record, each repository's checkout, the
+    generations on disk, the steps an interrupted apply left open, each installed app's
+    unit as its service manager says (`lives`, by app name), the units of LPAM's apps
+    (`stray_live`), each desired app's dependencies on this machine (`deps_by`, by app
+    name) and the apps LPAM installed that are desired apps as they are (`adopt`:
+    desired app → stray)."""
+
     record: StateRecord
     repositories: dict[str, RepoObserved]
     generations: frozenset[GenerationKey] = frozenset()
     interrupted: tuple[str, ...] = ()
-    live: UnitState | None = None  # the installed app's unit, as its service manager says
-    stray_live: dict[str, UnitState] = field(default_factory=dict)  # LPAM's app's unit
-    deps: DepsObserved | None = None  # the desired app's dependencies on this machine
-    adopt: str | None = None  # the app LPAM installed that is the desired one as it is
-    lives: dict[str, UnitState] = field(default_factory=dict)  # each installed app's unit
-    deps_by: dict[str, DepsObserved] = field(default_factory=dict)  # each desired app's
-
-    def live_of(self, name: str) -> UnitState | None:
-        """The unit of the installed app `name` (`live`: the one-app world's only app)."""
-        if name in self.lives:
-            return self.lives[name]
-        app = self.record.app
-        return self.live if app is not None and app.name == name else None
-
-    def deps_of(self, app: AppTarget, first: bool) -> DepsObserved | None:
-        """The dependencies of the desired app `app` on this machine (`deps`: the first
-        desired app's, as the one-app world observed them)."""
-        return self.deps_by.get(app.name, self.deps if first else None)
+    lives: dict[str, UnitState] = field(default_factory=dict)
+    stray_live: dict[str, UnitState] = field(default_factory=dict)
+    deps_by: dict[str, DepsObserved] = field(default_factory=dict)
+    adopt: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

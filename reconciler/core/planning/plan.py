@@ -26,7 +26,7 @@ def make_plan(
 ) -> Plan:
     """`hold`: a rollback holds the machine (the reason); the plan proposes nothing."""
     if hold is not None:
-        changes = [Change(address="app", action=Action.NOOP, reason=hold, warnings=[hold])]
+        changes = [Change(address="hold", action=Action.NOOP, reason=hold, warnings=[hold])]
         steps = []
     else:
         changes = diff(targets, observed)

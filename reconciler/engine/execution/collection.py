@@ -15,7 +15,7 @@ from schemas.record import history_sets
 def prune(ctx: Context, *, keep: int = 3) -> None:
     """After a successful apply, generations still installed are kept (the app's and any
     stray's: their scripts are what stops them), and the last `keep` good ones of the
-    history (what `lpam rollback` returns to: a set of apps, one in the one-app world);
+    history (what `lpam rollback` returns to: a set of apps);
     and only the exit codes still awaited."""
     record = ctx.record
     kept = {GenerationKey.of(s.name, s.generation) for s in record.strays}

@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from reconciler.base.errors import HealthError, LpamError, StateWriteError, StepError
-from reconciler.core.planning.ensemble import one_app_world, set_steps
+from reconciler.core.planning.ensemble import set_steps
 from reconciler.core.planning.graph import order
 from reconciler.core.planning.lifecycle import resume_text, target_of
 from reconciler.core.planning.model import GenerationKey
@@ -108,16 +108,15 @@ def returns_to(record: StateRecord, layout_generations: frozenset[GenerationKey]
                ) -> list[AppRecord]:
     """The good apps a failing apply goes back to: the ones its interrupted predecessor
     recorded; else each installed app if it proved good, else the newest good generation
-    of the history still on disk (of that app, when several are installed); else (nothing
-    good is known) the installed app as it is."""
+    of that app in the history still on disk; else (nothing good is known) the installed
+    app as it is."""
     if record.cutover is not None:
         return list(record.cutover.previous)
-    several = len(record.apps) > 1
     back = []
     for app in record.apps:
         entry = None if app.good else next(
             (e for e in reversed(record.history) if e.result == "applied"
-             and (e.app == app.name or not several)
+             and e.app == app.name
              and GenerationKey.of(e.app, e.generation) in layout_generations), None)
         back.append(app if entry is None else entry.installed())
     return back
@@ -173,7 +172,7 @@ class RollbackResult:
     said: str = ""  # what happened, to add to the failure's message
 
 
-def rollsteps_back(failed: Step, exc: LpamError, previous: list[AppRecord], ctx: Context,
+def roll_back(failed: Step, exc: LpamError, previous: list[AppRecord], ctx: Context,
               journal: AdvisoryJournal, progress: Progress, *, record_result: bool
               ) -> RollbackResult:
     """After a failed cutover step, go back to the apps that ran before: every change of
@@ -214,8 +213,7 @@ def steps_back(record: StateRecord, previous: list[AppRecord],
             record = record.with_app(app.name, app.model_copy(update={"status": "starting"}))
     targets = [target_of(p) for p in previous]
     held = {p.name for p in previous if p.held}
-    steps = set_steps(record, targets, generations, verify=False, stopped=held)
-    return steps if one_app_world(record, targets) else order(steps, chained=False)
+    return order(set_steps(record, targets, generations, verify=False, stopped=held))
 
 
 def changed(record: StateRecord, previous: list[AppRecord]) -> list[AppRecord]:
@@ -229,8 +227,7 @@ def _note_rollback(ctx: Context, previous: list[AppRecord], reason: str, *,
                    health: bool) -> None:
     cutover = ctx.record.cutover or Cutover(
         previous=previous, began=ctx.clock().isoformat(timespec="seconds"))
-    failed = ctx.record.apps if len(ctx.record.apps) <= 1 else changed(ctx.record, previous)
-    rollback = Rollback(failed=failed, reason=reason, health=health,
+    rollback = Rollback(failed=changed(ctx.record, previous), reason=reason, health=health,
                         time=ctx.clock().isoformat(timespec="seconds"))
     ctx.save(ctx.record.model_copy(
         update={"cutover": cutover.model_copy(update={"rollback": rollback})}))
@@ -239,9 +236,8 @@ def _note_rollback(ctx: Context, previous: list[AppRecord], reason: str, *,
 def fail(step: Step, exc: LpamError, previous: list[AppRecord], ctx: Context,
          journal: AdvisoryJournal, progress: Progress, *, record_result: bool) -> LpamError:
     """Roll back if the cutover had begun, record how the apply ended; the error to raise."""
-    attempted = ctx.record.apps if len(ctx.record.apps) <= 1 else \
-        changed(ctx.record, previous)
-    rolled = rollsteps_back(step, exc, previous, ctx, journal, progress,
+    attempted = changed(ctx.record, previous)
+    rolled = roll_back(step, exc, previous, ctx, journal, progress,
                        record_result=record_result)
     back = rolled.outcome is Outcome.BACK
     message = f"step {step.id} failed: {exc.message}.{rolled.said} {where(step.phase, ctx)}"
@@ -279,10 +275,7 @@ def hold_after(record: StateRecord, result: ApplyResult) -> Hold | None:
     hold = record.hold
     if hold is None or result != "applied":
         return hold
-    if hold.targets:
-        return hold if record.apps and same_set(hold.targets, record.apps) else None
-    app = record.app
-    return hold if app is not None and app.generation == hold.generation else None
+    return hold if record.apps and same_set(hold.targets, record.apps) else None
 
 
 def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
@@ -318,11 +311,10 @@ KEEP_SETS = 20  # the sets of apps `lpam history` remembers
 
 
 def same_set(entries: Sequence[HistoryEntry], apps: Sequence[AppRecord]) -> bool:
-    """Whether a set of the history is what `apps` are: each app's generation and
-    parameters (in the one-app world, whatever its name: a generation names its app)."""
+    """Whether a set of the history is what `apps` are: each app's name, generation and
+    parameters."""
     def key(name: str, generation: str, params: dict[str, str]) -> tuple[str, ...]:
-        return (name if len(apps) > 1 or len(entries) > 1 else "", generation,
-                *sorted(f"{k}={v}" for k, v in params.items()))
+        return (name, generation, *sorted(f"{k}={v}" for k, v in params.items()))
 
     return {key(e.app, e.generation, e.params) for e in entries} == \
         {key(a.name, a.generation, a.params) for a in apps}

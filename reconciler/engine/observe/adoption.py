@@ -30,21 +30,26 @@ BYTES_LIMIT = 256 * 1024 * 1024  # read at most this much of LPAM's folder to co
 
 
 def adoptable(layout: Layout, store: Store, record: StateRecord,
-              targets: Targets) -> str | None:
-    """The name of the stray (an app LPAM installed) that is the desired app as it is."""
-    app = targets.app
-    if app is None or record.app is not None or app.commit is None or app.path is None:
-        return None
-    if app.command is not None or app.launch is not None or app.params or app.user or \
-            app.deps.how:
-        return None
-    for stray in record.strays:
-        if stray.folder is None or stray.folder != app.folder or stray.pending is not None:
+              targets: Targets) -> dict[str, str]:
+    """Each desired app that an app LPAM installed (a stray) is, as it is: desired app →
+    stray. Only an app lpam would run as LPAM did (scripts, no parameters, no dependencies
+    to prepare) and that is not installed under its name is taken over; each stray once."""
+    found: dict[str, str] = {}
+    for app in targets.apps:
+        if record.installed(app.name) is not None or app.commit is None or app.path is None:
             continue
-        wanted = store.folder_blobs(app.repository, app.commit, app.path)
-        if wanted is not None and wanted == disk_blobs(layout.libpanda_apps / stray.folder):
-            return stray.name
-    return None
+        if app.command is not None or app.launch is not None or app.params or app.user or \
+                app.deps.how:
+            continue
+        for stray in record.strays:
+            if stray.folder is None or stray.folder != app.folder or \
+                    stray.pending is not None or stray.name in found.values():
+                continue
+            wanted = store.folder_blobs(app.repository, app.commit, app.path)
+            if wanted is not None and wanted == disk_blobs(layout.libpanda_apps / stray.folder):
+                found[app.name] = stray.name
+                break
+    return found
 
 
 def disk_blobs(folder: Path) -> dict[str, str] | None:

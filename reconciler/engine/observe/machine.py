@@ -1,5 +1,5 @@
 """Read-only probes of the machine: the state record, the repository store, the staged
-generations, the journal of an interrupted apply, and the installed app's unit as its
+generations, the journal of an interrupted apply, and each installed app's unit as its
 service manager reports it now (the live state: the record says what lpam last did, the
 manager says what runs). Nothing here writes.
 
@@ -47,13 +47,11 @@ def observe(layout: Layout, store: Store, targets: Targets,
         repositories=repositories,
         generations=generations.present(layout),
         interrupted=tuple(interrupted_steps(layout)),
-        live=live_state(record.app.service if record.app else None, services),
-        stray_live=_taken_over(layout, record, services),
-        deps=dependencies(layout, targets.app, record, deps),
-        adopt=adoptable(layout, store, record, targets) if record.strays else None,
         lives=lives(record, services),
-        deps_by={a.name: d for a in targets.apps[1:]
+        stray_live=_taken_over(layout, record, services),
+        deps_by={a.name: d for a in targets.apps
                  for d in [dependencies(layout, a, record, deps)] if d is not None},
+        adopt=adoptable(layout, store, record, targets) if record.strays else {},
     )
 
 
@@ -63,11 +61,12 @@ def lives(record: StateRecord, services: Services | None) -> dict[str, UnitState
     return {name: state for name, state in found.items() if state is not None}
 
 
-def dependencies(layout: Layout, app: AppTarget | None, record: StateRecord,
+def dependencies(layout: Layout, app: AppTarget, record: StateRecord,
                  ports: DependencyPorts | None) -> DepsObserved | None:
     """The desired app's dependencies as the machine has them now (read-only: dpkg-query,
-    distribution metadata, the workspace's build markers)."""
-    if app is None or ports is None:
+    distribution metadata, the workspace's build markers), and the ROS commits of the
+    installed app of its name."""
+    if ports is None:
         return None
     wanted = app.deps
     ros_built = True
@@ -76,7 +75,7 @@ def dependencies(layout: Layout, app: AppTarget | None, record: StateRecord,
         workspace = ports.workspace(Path(wanted.workspace.path), wanted.workspace.user)
         ros_built = key is not None and workspace.built(key)
     installed: dict[str, str] = {}
-    now = record.installed(app.name) or (record.app if len(record.apps) == 1 else None)
+    now = record.installed(app.name)
     if now is not None:
         meta = generations.read_meta(layout.generation_meta(now.name, now.generation))
         installed = dict(meta.ros) if meta is not None else {}

@@ -163,15 +163,15 @@ def keep_offered(layout: Layout, store: Store, record: StateRecord) -> None:
     folder in `/etc/libpanda.d/apps/`, as LPAM's `-p` left them (its `-d` and `-i` read
     them): a folder missing (an app lpam uninstalled) is exported from the repository at
     its commit, and one lpam exported is refreshed when that commit moved. A folder LPAM
-    made is never touched, nor the installed app's link."""
+    made is never touched, nor an installed app's link."""
     if not _used_lpam(layout):
         return
     exported = _exported(layout)
     before = dict(exported)
-    installed = None if record.app is None else record.app.path
+    installed = {_folder_of(a.path) for a in record.apps}
     for repo in record.repositories:
         for folder, path in _offered(store, repo.key, repo.commit):
-            if installed is not None and folder == _folder_of(installed):
+            if folder in installed:
                 continue
             place = layout.libpanda_apps / folder
             ours = exported.get(folder)
