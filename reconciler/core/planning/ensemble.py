@@ -17,14 +17,11 @@ that is a desired app as it is, is adopted in place (`adopt`).
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
 
-from reconciler.core.planning.lifecycle import (
-    adopted_steps,
-    app_steps,
-    operated,
-    stray_steps,
-    target_of,
-)
+from reconciler.base.unit import UnitState
+from reconciler.core.planning.decision import Decision, decide
+from reconciler.core.planning.lifecycle import operated, stray_steps, target_of
 from reconciler.core.planning.model import AppTarget, GenerationKey
 from schemas.operator import OperatorAction
 from schemas.plan import AdoptStep, InstallStep, Phase, StartStep, Step, UninstallStep
@@ -42,31 +39,46 @@ def pairs(record: StateRecord, wanted: Sequence[AppTarget]
     return found + [(record.installed(t.name), t) for t in wanted]
 
 
-def set_steps(record: StateRecord, wanted: Sequence[AppTarget],
-              generations: frozenset[GenerationKey], *, start: bool = True,
-              verify: bool = True, adopt: Mapping[str, str] | None = None,
-              stopped: Collection[str] = ()) -> list[Step]:
-    """The steps from the record's apps (and strays) to `wanted`, each app's own cutover
-    a chain (`needs`), ordered across apps only by what they claim. `adopt`: a wanted app
-    that is, as it is, an app LPAM installed (its stray's name) — taken over in place.
-    `stopped`: apps not to be started (an operator's stop a rollback keeps)."""
+@dataclass(frozen=True)
+class SetPlan:
+    """The set's plan: each app's decision (in `pairs` order), and every step — the
+    strays' first, each app's cutover its own chain, ordered across apps by claims."""
+
+    decisions: tuple[Decision, ...]
+    steps: tuple[Step, ...]
+
+
+def plan_set(record: StateRecord, wanted: Sequence[AppTarget],
+             generations: frozenset[GenerationKey],
+             lives: Mapping[str, UnitState] | None = None, *, start: bool = True,
+             verify: bool = True, adopt: Mapping[str, str] | None = None,
+             stopped: Collection[str] = ()) -> SetPlan:
+    """From the record's apps (and strays) to `wanted`: one decision per app. `lives`:
+    each installed app's unit now, by name; `adopt`: a wanted app that is, as it is, an
+    app LPAM installed (its stray's name) — taken over in place; `stopped`: apps not to
+    be started (an operator's stop a rollback keeps)."""
     adopt = adopt or {}
+    lives = lives or {}
     taken = {name: next(s for s in record.strays if s.name == stray)
              for name, stray in adopt.items()}
     strays = stray_steps([s for s in record.strays if s.name not in adopt.values()])
+    decided: list[Decision] = []
     steps: list[Step] = list(strays)
     leaving: list[tuple[AppRecord, Step]] = []
     for old, new in pairs(record, wanted):
         keep = start and not (new is not None and new.name in stopped)
-        if old is None and new is not None and new.name in taken:
-            own = adopted_steps(taken[new.name], new, generations, start=keep, verify=verify)
-        else:
-            own = app_steps(old, new, generations, start=keep, verify=verify)
-        own = _chained(own)
+        heirs = () if old is None or new is not None else tuple(
+            a.name for a in wanted if a.resources & old.claims)
+        decision = decide(old, new, generations, None if old is None else lives.get(old.name),
+                          start=keep, verify=verify,
+                          adopted=taken.get(new.name) if new is not None else None,
+                          heirs=heirs)
+        decided.append(decision)
+        own = _chained(list(decision.steps))
         steps += own
         if old is not None:
             leaving += [(old, s) for s in own if isinstance(s, UninstallStep)]
-    return _claims_ordered(steps, strays, leaving, wanted)
+    return SetPlan(tuple(decided), tuple(_claims_ordered(steps, strays, leaving, wanted)))
 
 
 def operator_steps(record: StateRecord, action: OperatorAction,
@@ -81,8 +93,8 @@ def operator_steps(record: StateRecord, action: OperatorAction,
         return []
     wanted = [target_of(a) for a in chosen]
     restricted = record.model_copy(update={"apps": [operated(a, action) for a in chosen]})
-    return set_steps(restricted, wanted, generations, start=action != OperatorAction.STOP,
-                     verify=False)
+    return list(plan_set(restricted, wanted, generations,
+                         start=action != OperatorAction.STOP, verify=False).steps)
 
 
 def _chained(steps: list[Step]) -> list[Step]:

@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING
 
 from reconciler.base.errors import PlanError
 from reconciler.core.planning import dependencies
-from reconciler.core.planning.ensemble import set_steps
-from reconciler.core.planning.lifecycle import refreshed, step_id
+from reconciler.core.planning.ensemble import SetPlan
+from reconciler.core.planning.lifecycle import step_id
 from reconciler.core.planning.model import Observed, Targets
 from schemas.plan import Action, Change, CheckoutStep, Phase, RemoveStep, Step, StepKind
 
@@ -28,8 +28,10 @@ if TYPE_CHECKING:
 _PHASE_ORDER = {Phase.PREPARE: 0, Phase.CUTOVER: 1, Phase.CLEANUP: 2}
 
 
-def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> list[Step]:
-    """The steps that close the changes, in an order that respects the graph."""
+def steps_for(changes: list[Change], targets: Targets, observed: Observed,
+              apps: SetPlan) -> list[Step]:
+    """The steps that close the changes, in an order that respects the graph: the
+    repositories' and dependencies' here, the apps' as the set's plan chose them."""
     by_address = {c.address: c for c in changes}
     steps: list[Step] = []
     for t in targets.repositories:
@@ -46,9 +48,7 @@ def steps_for(changes: list[Change], targets: Targets, observed: Observed) -> li
                                     key=key))
     for app in targets.apps:
         steps += dependencies.steps(app, observed.deps_by.get(app.name))
-    record = refreshed(observed.record, observed.lives, observed.stray_live)
-    steps += set_steps(record, targets.apps, observed.generations, adopt=observed.adopt)
-    return order(_once(steps))
+    return order(_once([*steps, *apps.steps]))
 
 
 def _once(steps: list[Step]) -> list[Step]:

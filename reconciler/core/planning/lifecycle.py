@@ -1,31 +1,12 @@
-"""The app's lifecycle steps: from what the record says to the app that is wanted.
+"""The builders of one app's steps, and the record as the service manager sees it.
 
-One pure function serves the plan *and* the rollback of a failed cutover, so both obey the
-same two rules of the vehicle:
-- nothing is installed while another app (or a stray found on disk) may still hold the
-  CAN hardware: every other app is stopped (when it may be active) and uninstalled first;
-- a script that was cut off (the status still says `starting`, `stopping`, …) is finished
-  or redone, never assumed to have worked.
-
-Same generation wanted as recorded, by status:
-
-| status        | steps            | why                                                   |
-|---------------|------------------|-------------------------------------------------------|
-| running       | —                |                                                       |
-| installed     | start            |                                                       |
-| starting      | start            | start.sh was cut off or failed                        |
-| installing    | install, start   | install.sh was cut off or failed                      |
-| stopping      | stop, start      | finish the stop before starting again                 |
-| uninstalling  | install, start   | uninstall.sh failed: install.sh puts the app back     |
-
-An app an operator stopped (`held`) is never started by these rules; one that may still
-run (its stop was cut off, or it runs behind lpam's back) is stopped. An app that has not
-proved itself (`good` is false: its health check was cut off or never ran) is checked
-again, for a whole settle window, after whatever finishes it: a generation becomes good
-only once a verification ran to its end.
-
-Otherwise the recorded app is stopped (if it may be active) and uninstalled, then the new
-generation is staged (during preparation), installed and started.
+core/planning/decision.py decides, for each app, what happens and why; the steps it
+chooses are built here, so that a plan, an operator's command and the rollback of a
+failed cutover name their steps alike: a step's id is its kind and the generation it
+works on, and a step carries everything the executor needs to run it (the generation as
+recorded for an installed app, as wanted for a new one). Strays (apps on disk that no
+record knows) are stopped and uninstalled with their own scripts; LPAM's app that is the
+desired one as it is, is adopted in place.
 """
 
 from __future__ import annotations
@@ -50,9 +31,9 @@ from schemas.plan import (
     UninstallStep,
     VerifyStep,
 )
-from schemas.record import ACTIVE, AppRecord, StateRecord, Stray
+from schemas.record import AppRecord, StateRecord, Stray
 
-_SAME_GENERATION: dict[str, tuple[StepKind, ...]] = {
+SAME_GENERATION: dict[str, tuple[StepKind, ...]] = {  # the installed generation wanted
     "running": (),
     "installed": (StepKind.START,),
     "starting": (StepKind.START,),
@@ -96,45 +77,6 @@ def same_generation(old: AppRecord, new: AppTarget,
     return same and GenerationKey.of(old.name, old.generation) in generations
 
 
-def keeps(old: AppRecord, new: AppTarget, generations: frozenset[GenerationKey]) -> bool:
-    """True when `new` is exactly what is installed: same generation, same parameters."""
-    return same_generation(old, new, generations) and _settings(old) == _settings(new)
-
-
-def _settings(app: AppRecord | AppTarget) -> tuple[dict[str, str], str | None]:
-    return dict(app.params), app.user
-
-
-def app_steps(
-    old: AppRecord | None, new: AppTarget | None, generations: frozenset[GenerationKey], *,
-    start: bool = True, verify: bool = True,
-) -> list[Step]:
-    """The steps of one app: from the installed app of its name (`old`) to `new`, started
-    if `start` (and its health checked if `verify`). An app an operator stopped (`held`)
-    stays stopped while it is the one wanted."""
-    if new is not None and old is not None and same_generation(old, new, generations):
-        target = f"{old.name}@{old.generation}"
-        if keeps(old, new, generations):
-            return _resume(old, new, target, start=start, verify=verify)
-        return _reconfigure(old, new, target, start=start, verify=verify)
-    steps: list[Step] = []
-    gen = (new.generation or UNKNOWN) if new is not None else None
-    if new is not None and gen is not None and GenerationKey.of(new.name, gen) not in generations:
-        steps.append(on(StepKind.STAGE, f"{new.name}@{gen}", generation_of(new, gen),
-                        good=new.proven, phase=Phase.PREPARE))
-    if old is not None:
-        target = f"{old.name}@{old.generation}"
-        if old.status in ACTIVE:
-            steps.append(on(StepKind.STOP, target, recorded(old)))
-        steps.append(on(StepKind.UNINSTALL, target, recorded(old)))
-    if new is not None and gen is not None:
-        target = f"{new.name}@{gen}"
-        steps.append(on(StepKind.INSTALL, target, generation_of(new, gen), good=new.proven))
-        if start:
-            steps += _started(new, gen, target, verify=verify)
-    return steps
-
-
 def adopted_steps(stray: Stray, new: AppTarget, generations: frozenset[GenerationKey], *,
                   start: bool, verify: bool) -> list[Step]:
     """Take over LPAM's app in place (engine/observe/adoption.py found it to be `new` as
@@ -152,11 +94,11 @@ def adopted_steps(stray: Stray, new: AppTarget, generations: frozenset[Generatio
                            app=generation_of(new, gen), folder=stray.folder,
                            running=not stray.stopped))
     if stray.stopped and start:
-        steps += _started(new, gen, target, verify=verify)
+        steps += started(new, gen, target, verify=verify)
     return steps
 
 
-def _started(new: AppTarget, gen: str, target: str, *, verify: bool) -> list[Step]:
+def started(new: AppTarget, gen: str, target: str, *, verify: bool) -> list[Step]:
     """START, then VERIFY when there is something to check. The app is good once started
     only when it proved good before or an apply has nothing to check; else its verify,
     run to its end, makes it good."""
@@ -164,51 +106,17 @@ def _started(new: AppTarget, gen: str, target: str, *, verify: bool) -> list[Ste
     good = new.proven or (verify and not checks)
     steps = [on(StepKind.START, target, generation_of(new, gen), good=good)]
     if checks:
-        steps.append(_verify(new, gen, target))
+        steps.append(verified(new, gen, target))
     return steps
 
 
-def _verify(new: AppTarget, gen: str, target: str) -> VerifyStep:
+def verified(new: AppTarget, gen: str, target: str) -> VerifyStep:
     health = new.health
     check = HealthCheck(settle_seconds=health.settle_seconds,
                         timeout_seconds=health.timeout_seconds, command=_list(health.command),
                         can_ids=list(health.can_ids), can_within_seconds=health.can_within)
     return VerifyStep(id=step_id(StepKind.VERIFY, target), phase=Phase.CUTOVER,
                       app=generation_of(new, gen), health=check)
-
-
-def _resume(old: AppRecord, new: AppTarget, target: str, *, start: bool,
-            verify: bool) -> list[Step]:
-    """The installed generation is the one wanted: finish what a fault cut off (table
-    above), never start an app an operator stopped (stop it if it may run), and check an
-    app that has not proved itself for a whole settle window."""
-    kinds = _SAME_GENERATION[old.status]
-    if not start or old.held:
-        kinds = tuple(k for k in kinds if k is not StepKind.START)
-        if old.status in ("starting", "running"):
-            kinds = (StepKind.STOP,)
-    steps = [on(k, target, recorded(old), good=old.good) for k in kinds]
-    if start and verify and not old.held and not old.good:
-        steps.append(_verify(new, old.generation, target))
-    return steps
-
-
-def _reconfigure(old: AppRecord, new: AppTarget, target: str, *, start: bool,
-                 verify: bool) -> list[Step]:
-    """New parameters (or user) for the installed generation: stop it if it may run, record
-    them (a unit lpam wrote is rewritten), start it again. No install script runs and
-    nothing is fetched; a script that was cut off is finished first. With new parameters
-    the app has to prove itself again."""
-    wanted = generation_of(new, old.generation)
-    steps = []
-    if old.status in ACTIVE:
-        steps.append(on(StepKind.STOP, target, recorded(old)))
-    steps.append(on(StepKind.CONFIGURE, target, wanted, good=new.proven))
-    if old.status in ("installing", "uninstalling"):
-        steps.append(on(StepKind.INSTALL, target, wanted, good=new.proven))
-    if start:
-        steps += _started(new, old.generation, target, verify=verify)
-    return steps
 
 
 def _checks(health: HealthTarget) -> bool:
@@ -279,11 +187,11 @@ def refreshed(record: StateRecord, lives: Mapping[str, UnitState],
     installed app's unit, by name."""
     record = strays_refreshed(record, stray_live or {})
     for app in record.apps:
-        record = record.with_app(app.name, _refreshed_app(app, lives.get(app.name)))
+        record = record.with_app(app.name, refreshed_app(app, lives.get(app.name)))
     return record
 
 
-def _refreshed_app(app: AppRecord, live: UnitState | None) -> AppRecord:
+def refreshed_app(app: AppRecord, live: UnitState | None) -> AppRecord:
     if live is None or not live.known:
         return app
     if live.running and not live.supervised and app.status in ("running", "installed"):

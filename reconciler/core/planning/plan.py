@@ -10,7 +10,7 @@ from __future__ import annotations
 from datetime import datetime
 
 from reconciler.base.errors import PlanError, StalePlanError
-from reconciler.core.planning.diff import diff
+from reconciler.core.planning.diff import apps_planned, diff
 from reconciler.core.planning.graph import steps_for
 from reconciler.core.planning.model import UNKNOWN, Observed, Targets
 from schemas.generation import AppGeneration, StrayGeneration
@@ -29,8 +29,9 @@ def make_plan(
         changes = [Change(address="hold", action=Action.NOOP, reason=hold, warnings=[hold])]
         steps = []
     else:
-        changes = diff(targets, observed)
-        steps = steps_for(changes, targets, observed)
+        apps = apps_planned(targets, observed)  # each app decided once: changes and steps
+        changes = diff(targets, observed, apps)
+        steps = steps_for(changes, targets, observed, apps)
     counts = {a: sum(1 for c in changes if c.action is a) for a in Action}
     summary = (
         f"Plan: {counts[Action.CREATE]} to add, {counts[Action.UPDATE]} to change, "

@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from reconciler.base.errors import HealthError, LpamError, StateWriteError, StepError
-from reconciler.core.planning.ensemble import set_steps
+from reconciler.core.planning.ensemble import plan_set
 from reconciler.core.planning.graph import order
 from reconciler.core.planning.lifecycle import resume_text, target_of
 from reconciler.core.planning.model import GenerationKey
@@ -213,7 +213,7 @@ def steps_back(record: StateRecord, previous: list[AppRecord],
             record = record.with_app(app.name, app.model_copy(update={"status": "starting"}))
     targets = [target_of(p) for p in previous]
     held = {p.name for p in previous if p.held}
-    return order(set_steps(record, targets, generations, verify=False, stopped=held))
+    return order(plan_set(record, targets, generations, verify=False, stopped=held).steps)
 
 
 def changed(record: StateRecord, previous: list[AppRecord]) -> list[AppRecord]:
