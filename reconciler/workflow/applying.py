@@ -122,10 +122,9 @@ def _end_override(machine: Machine, options: ApplyOptions, report: Report) -> Fo
 
 def desired_ref(desired: DesiredState, path: Path) -> DesiredRef:
     """What an apply records it works toward: holds are held against its content."""
-    from reconciler.workflow.operate import desired_fingerprint
-    from schemas.record import DesiredRef
+    from reconciler.core.planning.holds import desired_ref as ref
 
-    return DesiredRef(fingerprint=desired_fingerprint(desired), source=str(path))
+    return ref(desired, str(path))
 
 
 def finishes_rollback(made: Plan) -> bool:

@@ -13,18 +13,16 @@ the desired state changes, plan and apply report it and propose nothing.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from datetime import datetime
 from pathlib import Path
 
 from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS
-from reconciler.core.planning.ensemble import operator_steps
+from reconciler.core.planning.holds import fingerprint
 from reconciler.core.planning.model import GenerationKey
-from reconciler.core.planning.plan import fingerprint
+from reconciler.core.planning.modes import operator_plan, rollback_plan
 from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.executor import execute
 from reconciler.engine.execution.lock import apply_lock
@@ -35,17 +33,10 @@ from reconciler.workflow.gates import governing
 from reconciler.workflow.machine import Machine
 from schemas.desired import DesiredState
 from schemas.operator import OperatorAction
-from schemas.plan import Plan, StartStep, Step
+from schemas.plan import StartStep, Step
 from schemas.record import AppRecord, HistoryEntry, Hold, StateRecord
 
 ProgressLine = Callable[[str], None]
-
-
-def _plan(ctx: Context, steps: list[Step], summary: str, now: datetime) -> Plan:
-    plan = Plan(lpam_version=__version__, created_at=now.isoformat(timespec="seconds"),
-                lineage=ctx.record.lineage, serial=ctx.record.serial, changes=[],
-                steps=steps, summary=summary)
-    return plan.model_copy(update={"fingerprint": fingerprint(plan)})
 
 
 def operate_installed(machine: Machine, action: OperatorAction, *, file: Path | None,
@@ -104,14 +95,13 @@ def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine,
                 ctx.save_app(one.name, one.model_copy(update={"held": True}))
             elif one.held:
                 ctx.save_app(one.name, one.model_copy(update={"held": False}))
-        steps = operator_steps(ctx.record, action, generations.present(ctx.layout),
-                               names=names)
-        if steps:
-            execute(_plan(ctx, steps, f"{action} {', '.join(names)}", ctx.clock()), ctx,
-                    progress=progress, record_result=False)
+        made = operator_plan(ctx.record, action, generations.present(ctx.layout),
+                             chosen=names, now=ctx.clock(), lpam_version=__version__)
+        if made.steps:
+            execute(made, ctx, progress=progress, record_result=False)
     if len(chosen) == 1:
-        return _done(action, names[0], bool(steps))
-    return _done_several(action, names, steps)
+        return _done(action, names[0], bool(made.steps))
+    return _done_several(action, names, made.steps)
 
 
 def chosen_apps(record: StateRecord, name: str | None,
@@ -197,40 +187,16 @@ def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | 
     mid-rollback, the next plan finishes it (workflow.planning). It holds against the
     desired state last applied, whichever file or revision that came from (`desired`, the
     default file's, counts only when no apply recorded one)."""
-    from reconciler.engine.execution.recovery import steps_back
-
     applied = ctx.record.desired
     hold = Hold(desired=applied.fingerprint if applied is not None
-                else desired_fingerprint(desired), targets=entries)
+                else fingerprint(desired), targets=entries)
     with gates_passed(ctx, progress):
         ctx.save(ctx.record.model_copy(update={"hold": hold}))
-        steps = steps_back(ctx.record, [e.installed() for e in entries],
-                           generations.present(ctx.layout))
-        if steps:
-            named = ", ".join(f"{e.app}@{e.generation}" for e in entries)
-            execute(_plan(ctx, steps, f"roll back to {named}", ctx.clock()),
-                    ctx, progress=progress, record_result=False)
+        made = rollback_plan(ctx.record, entries, generations.present(ctx.layout),
+                             now=ctx.clock(), lpam_version=__version__)
+        if made.steps:
+            execute(made, ctx, progress=progress, record_result=False)
     said = ", ".join(f"{e.app} ({e.generation}, commit {e.commit[:12]})" for e in entries)
     return (f"Rolled back to {said}. "
             f"{'It holds' if len(entries) == 1 else 'They hold'}: plan and apply propose "
             "nothing until the desired state changes (or `lpam apply --release`).")
-
-
-def desired_fingerprint(desired: DesiredState | None) -> str:
-    """What a hold compares: the desired state's content, not its formatting. A desired
-    state of at most one app is taken in version 1's shape (`app:`), as the lpam before
-    version 2 took it: a hold recorded then (an operator's stop, a rollback) must not end
-    because lpam was upgraded, only because the desired state changed."""
-    import json
-
-    if desired is None:
-        text = ""
-    elif len(desired.apps) > 1:
-        text = desired.model_dump_json()
-    else:
-        dumped = desired.model_dump(mode="json")
-        shaped = {("app" if k == "apps" else k): (v[0] if v else None) if k == "apps" else v
-                  for k, v in dumped.items()}
-        shaped["version"] = 1
-        text = json.dumps(shaped, ensure_ascii=False, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()

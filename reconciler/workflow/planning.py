@@ -21,7 +21,7 @@ from reconciler.workflow.machine import Machine
 
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
-    from reconciler.core.planning.model import Observed, Targets
+    from reconciler.core.planning.model import Targets
     from reconciler.engine.observe.targets import Fetch
     from schemas.desired import DesiredState
     from schemas.plan import Plan
@@ -79,6 +79,9 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     """Resolve the desired state, observe the machine and plan; `path` anchors relative
     URLs. `busy` is what holds the lock when the caller planned beside a running apply;
     `places` as `plan` takes them."""
+    from dataclasses import replace
+
+    from reconciler.core.planning.holds import hold_reason, released
     from reconciler.core.planning.plan import make_plan
     from reconciler.engine.observe.machine import asks_manager, observe
     from reconciler.engine.observe.targets import Fetch, resolve
@@ -102,13 +105,16 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     observed = observe(layout, store, targets,
                        machine.services if asks_manager(record) else None,
                        machine.deps if needs else None)
-    observed = _stop_released(observed, desired, report)
+    unheld, ended = released(observed.record, desired)  # an operator's stop may end
+    for note in ended:
+        report(Note(note))
+    observed = replace(observed, record=unheld)
     report(Phase("observe"))
     if busy is not None:
         report(Note(f"an apply is in progress ({busy}); this plan shows the machine as it "
                     "stands now, part-way through it"))
     made = make_plan(targets, observed, now=machine.clock(), lpam_version=__version__,
-                     offline=fetch is Fetch.OFFLINE, hold=hold)
+                     offline=fetch is Fetch.OFFLINE)
     report(Phase("plan"))
     if busy is None and observed.interrupted:
         report(Note(interrupted_note(observed.interrupted, made)))
@@ -131,26 +137,6 @@ def refuse_shared_claims(path: Path, places: Sequence[tuple[int, int]],
     refuse(conflicts(claims))
 
 
-def _stop_released(observed: Observed, desired: DesiredState, report: Report) -> Observed:
-    """An operator's stop holds against the desired state last applied: once that desired
-    state changed (a new file, a new revision), the stop is over and the app is planned
-    as any stopped app — started. (`lpam apply --release` ends it too.)"""
-    from dataclasses import replace
-
-    from reconciler.workflow.operate import desired_fingerprint
-
-    record = observed.record
-    applied = record.desired
-    if applied is None or applied.fingerprint == desired_fingerprint(desired):
-        return observed
-    for app in record.apps:
-        if app.held:
-            report(Note(f"the operator's stop of {app.name} ends: the desired state changed "
-                        f"since it was last applied (from {applied.source})"))
-            record = record.with_app(app.name, app.model_copy(update={"held": False}))
-    return replace(observed, record=record)
-
-
 def interrupted_note(interrupted: tuple[str, ...], made: Plan) -> str:
     """What the plan does about the steps the last apply was cut off in. A step's script
     may have finished after lpam died (its guard wrote the exit code): then the record is
@@ -171,56 +157,31 @@ def interrupted_note(interrupted: tuple[str, ...], made: Plan) -> str:
 def _held_plan(machine: Machine, store: GitStore, record: StateRecord, hold: str,
                report: Report) -> Plan:
     """While a rollback holds: the steps that finish it if it was cut off, else nothing."""
-    from reconciler.core.planning.lifecycle import target_of
-    from reconciler.core.planning.model import Observed, RepoTarget, Targets
-    from reconciler.core.planning.plan import make_plan
+    from reconciler.core.planning.modes import held_plan, hold_targets
     from reconciler.engine.observe.machine import observe
 
-    entries = record.hold.targets if record.hold is not None else []
-    if entries:
-        repos = tuple(RepoTarget(r.key, r.url, r.ref, r.commit) for r in record.repositories)
-        targets = Targets(repos, tuple(target_of(e.installed()) for e in entries))
-        made = make_plan(targets, observe(machine.layout, store, targets, machine.services),
-                         now=machine.clock(), lpam_version=__version__)
-        if made.steps:
-            back = ", ".join(f"{e.app} ({e.generation})" for e in entries)
-            report(Note(f"the rollback to {back} was cut off; the steps below finish it"))
-            return made
-    return make_plan(Targets(()), Observed(record=record, repositories={}),
-                     now=machine.clock(), lpam_version=__version__, hold=hold)
+    targets = hold_targets(record)
+    finishing = None if targets is None else \
+        (targets, observe(machine.layout, store, targets, machine.services))
+    made, finishes = held_plan(record, hold, finishing, now=machine.clock(),
+                               lpam_version=__version__)
+    if finishes:
+        back = ", ".join(f"{e.app} ({e.generation})"
+                         for e in (record.hold.targets if record.hold else []))
+        report(Note(f"the rollback to {back} was cut off; the steps below finish it"))
+    return made
 
 
 def _finishing_plan(machine: Machine, record: StateRecord, report: Report) -> Plan:
-    """A rollback that a fault cut off is finished before anything else: its steps back
-    to the good app it was returning to, by the rules of any plan, whatever the desired
-    state says now (the next run goes on from there)."""
-    from reconciler.core.planning.lifecycle import refreshed
-    from reconciler.core.planning.plan import sealed
-    from reconciler.engine.execution.recovery import names, steps_back
+    """A rollback that a fault cut off is finished before anything else
+    (core/planning/modes.py), each app's unit asked of its manager."""
+    from reconciler.core.planning.modes import finished_to, finishing_plan
     from reconciler.engine.observe.machine import lives
     from reconciler.engine.records import generations
-    from schemas.plan import Action, Change
 
-    assert record.cutover is not None and record.cutover.rollback is not None
-    previous, rollback = record.cutover.previous, record.cutover.rollback
-    failed = names(rollback.failed) if rollback.failed else "the new app"
-    back = f"to {names(previous)}" if previous else "removing the new app"
-    reason = (f"the rollback {back} after {failed} failed ({rollback.reason}) was cut off "
-              "by a fault: finished, and the failure recorded")
-    steps = steps_back(refreshed(record, lives(record, machine.services)),
-                       previous, generations.present(machine.layout))
-    report(Note(f"a rollback {back} was cut off by a fault; the steps below finish it"))
-    return sealed(record, [Change(address="rollback", action=Action.UPDATE, reason=reason)],
-                  steps, now=machine.clock(), lpam_version=__version__,
-                  summary=f"Plan: finish the rollback {back}.")
-
-
-def hold_reason(record: StateRecord, desired: DesiredState) -> str | None:
-    """The reason the machine is held by a rollback, while the desired state is unchanged."""
-    from reconciler.workflow.operate import desired_fingerprint
-
-    hold = record.hold
-    if hold is None or hold.desired != desired_fingerprint(desired):
-        return None
-    return (f"held by `lpam rollback` at generation {hold.name}: nothing is proposed "
-            "until the desired state changes (`lpam apply --release` ends the hold)")
+    made = finishing_plan(record, lives(record, machine.services),
+                          generations.present(machine.layout), now=machine.clock(),
+                          lpam_version=__version__)
+    report(Note(f"a rollback {finished_to(record)} was cut off by a fault; the steps below "
+                "finish it"))
+    return made

@@ -181,7 +181,7 @@ def test_a_hold_survives_the_upgrade_to_version_2(tmp_path: Path) -> None:
     """A stop or rollback holds while the desired state's fingerprint is unchanged: the
     digest below is the one the lpam before version 2 recorded for this file, so an
     upgraded lpam does not start an app the operator stopped."""
-    from reconciler.workflow.operate import desired_fingerprint
+    from reconciler.core.planning.holds import fingerprint as desired_fingerprint
 
     text = ("version: 1\nrepositories: [{repo: a/b, ref: main}]\napp: {name: x, params: "
             "{A: 'é ü', B: '2'}, user: circles, health: {settle_seconds: 5}}\nmirrors: "

@@ -18,7 +18,7 @@ from reconciler.base.layout import Layout
 from reconciler.core.documents import load_plan
 from reconciler.core.planning.lifecycle import generation_of, on
 from reconciler.core.planning.model import AppTarget, HealthTarget
-from reconciler.core.planning.plan import sealed
+from reconciler.core.planning.plan import seal as sealed
 from reconciler.engine.execution.lock import apply_lock
 from reconciler.frontends import cli
 from schemas.plan import CheckoutStep, HealthCheck, Phase, StepKind, VerifyStep

@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from reconciler.base.errors import ConfigError
-from reconciler.core.planning.plan import fingerprint, sealed
+from reconciler.core.planning.plan import fingerprint
+from reconciler.core.planning.plan import seal as sealed
 from reconciler.frontends.cli import VALIDATE_KINDS
 from reconciler.workflow.validation import Kind, validate
 from schemas.plan import CheckoutStep, Phase

@@ -17,49 +17,45 @@ from schemas.generation import AppGeneration, StrayGeneration
 from schemas.plan import Action, BuildStep, Change, CheckoutStep, Plan, Step, fingerprint
 from schemas.record import StateRecord
 
-__all__ = ["check_plan", "fingerprint", "make_plan", "sealed", "unknown_values"]
+__all__ = ["check_plan", "fingerprint", "make_plan", "seal", "unknown_values"]
 
 
 def make_plan(
     targets: Targets, observed: Observed, *, now: datetime, lpam_version: str,
     offline: bool = False, hold: str | None = None,
 ) -> Plan:
-    """`hold`: a rollback holds the machine (the reason); the plan proposes nothing."""
+    """The plan toward the desired state. `hold`: a rollback holds the machine (the
+    reason); the plan proposes nothing."""
     if hold is not None:
         changes = [Change(address="hold", action=Action.NOOP, reason=hold, warnings=[hold])]
-        steps = []
+        steps: list[Step] = []
     else:
         apps = apps_planned(targets, observed)  # each app decided once: changes and steps
         changes = diff(targets, observed, apps)
         steps = steps_for(changes, targets, observed, apps)
-    counts = {a: sum(1 for c in changes if c.action is a) for a in Action}
-    summary = (
-        f"Plan: {counts[Action.CREATE]} to add, {counts[Action.UPDATE]} to change, "
-        f"{counts[Action.REPLACE]} to replace, {counts[Action.DELETE]} to destroy."
-        if any(c.action is not Action.NOOP for c in changes)
-        else "No changes. The machine matches the desired state."
-    )
-    plan = Plan(
-        lpam_version=lpam_version,
-        created_at=now.isoformat(timespec="seconds"),
-        lineage=observed.record.lineage,
-        serial=observed.record.serial,
-        changes=changes,
-        steps=steps,
-        summary=summary,
-        offline=offline,
-    )
-    return plan.model_copy(update={"fingerprint": fingerprint(plan)})
+    return seal(observed.record, changes, steps, now=now, lpam_version=lpam_version,
+                offline=offline)
 
 
-def sealed(record: StateRecord, changes: list[Change], steps: list[Step], *, now: datetime,
-           lpam_version: str, summary: str) -> Plan:
-    """A plan of given steps against `record` (an operator's command, a rollback that is
-    finished), sealed like any other."""
+def seal(record: StateRecord, changes: list[Change], steps: list[Step], *, now: datetime,
+         lpam_version: str, summary: str | None = None, offline: bool = False) -> Plan:
+    """The one place a plan is made: against `record` (its lineage and serial, so a plan
+    made against another state is refused), sealed by its fingerprint. `summary`: what
+    the plan does, when it is not counted from its changes (an operator's command, a
+    rollback)."""
+    if summary is None:
+        counts = {a: sum(1 for c in changes if c.action is a) for a in Action}
+        summary = (
+            f"Plan: {counts[Action.CREATE]} to add, {counts[Action.UPDATE]} to change, "
+            f"{counts[Action.REPLACE]} to replace, {counts[Action.DELETE]} to destroy."
+            if any(c.action is not Action.NOOP for c in changes)
+            else "No changes. The machine matches the desired state."
+        )
     plan = Plan(lpam_version=lpam_version, created_at=now.isoformat(timespec="seconds"),
                 lineage=record.lineage, serial=record.serial, changes=changes, steps=steps,
-                summary=summary)
+                summary=summary, offline=offline)
     return plan.model_copy(update={"fingerprint": fingerprint(plan)})
+
 
 _MUST_KNOW = ("repository", "commit", "path", "tree", "generation")
 

@@ -22,10 +22,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from reconciler.base.errors import HealthError, LpamError, StateWriteError, StepError
-from reconciler.core.planning.ensemble import plan_set
-from reconciler.core.planning.graph import order
-from reconciler.core.planning.lifecycle import resume_text, target_of
+from reconciler.core.planning.lifecycle import resume_text
 from reconciler.core.planning.model import GenerationKey
+from reconciler.core.planning.modes import names, steps_back
 from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.steps import run
 from reconciler.engine.records.journal import Journal
@@ -122,10 +121,6 @@ def returns_to(record: StateRecord, layout_generations: frozenset[GenerationKey]
     return back
 
 
-def names(apps: Sequence[AppRecord]) -> str:
-    return ", ".join(a.name for a in apps)
-
-
 def begun(ctx: Context) -> StateRecord:
     """The record as an apply begins: its result `in progress` (with this process, so one
     that is gone reads as cut off) and the desired state it works toward."""
@@ -198,22 +193,6 @@ def roll_back(failed: Step, exc: LpamError, previous: list[AppRecord], ctx: Cont
                               f"{again.message}.")
     return RollbackResult(Outcome.BACK, f" Rolled back to {names(previous)}." if previous
                           else " Removed the new app again.")
-
-
-def steps_back(record: StateRecord, previous: list[AppRecord],
-          generations: frozenset[GenerationKey]) -> list[Step]:
-    """The steps back to `previous`. The car must not be left with no app: each previous
-    app is started again unless an operator had stopped it (after a crash its status may
-    say `installing` though it ran); one whose stop.sh just failed is brought back up,
-    not stopped again."""
-    for app in record.apps:
-        before = next((p for p in previous if p.name == app.name), None)
-        if before is not None and app.status == "stopping" and \
-                app.generation == before.generation:
-            record = record.with_app(app.name, app.model_copy(update={"status": "starting"}))
-    targets = [target_of(p) for p in previous]
-    held = {p.name for p in previous if p.held}
-    return order(plan_set(record, targets, generations, verify=False, stopped=held).steps)
 
 
 def changed(record: StateRecord, previous: list[AppRecord]) -> list[AppRecord]:

@@ -1,0 +1,64 @@
+"""Holds: what keeps the car as it is while the desired state stays what it was.
+
+An operator's stop (`lpam stop`) and a rollback (`lpam rollback`) hold against the desired
+state last applied — its content, not its formatting (`fingerprint`), whichever file or
+revision of the followed repository it came from. A stop holds one app until `lpam
+start`; both end when that desired state changes (`released`, `hold_reason`), or with
+`lpam apply --release`. Pure: the state record and the desired state in, values out.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+from schemas.desired import DesiredState
+from schemas.record import DesiredRef, StateRecord
+
+
+def fingerprint(desired: DesiredState | None) -> str:
+    """A desired state's content, written in the oldest version of the document that can
+    say it: version 1 for at most one app, version 2 for more. One form, so that a hold
+    recorded by any lpam since version 1 (an operator's stop, a rollback) ends only
+    because the desired state changed, never because lpam was upgraded."""
+    if desired is None:
+        text = ""
+    elif len(desired.apps) > 1:
+        text = desired.model_dump_json()
+    else:
+        dumped = desired.model_dump(mode="json")
+        shaped = {("app" if k == "apps" else k): (v[0] if v else None) if k == "apps" else v
+                  for k, v in dumped.items()}
+        shaped["version"] = 1
+        text = json.dumps(shaped, ensure_ascii=False, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def desired_ref(desired: DesiredState, source: str) -> DesiredRef:
+    """What an apply records it works toward: holds are held against its content."""
+    return DesiredRef(fingerprint=fingerprint(desired), source=source)
+
+
+def hold_reason(record: StateRecord, desired: DesiredState) -> str | None:
+    """Why a rollback holds the car, while the desired state is unchanged (None: no hold)."""
+    hold = record.hold
+    if hold is None or hold.desired != fingerprint(desired):
+        return None
+    return (f"held by `lpam rollback` at generation {hold.name}: nothing is proposed "
+            "until the desired state changes (`lpam apply --release` ends the hold)")
+
+
+def released(record: StateRecord, desired: DesiredState) -> tuple[StateRecord, list[str]]:
+    """An operator's stop holds against the desired state last applied: once that desired
+    state changed (a new file, a new revision), the stop is over and the app is planned as
+    any stopped app — started. The record as planned, and what is said of each stop."""
+    applied = record.desired
+    if applied is None or applied.fingerprint == fingerprint(desired):
+        return record, []
+    notes = []
+    for app in record.apps:
+        if app.held:
+            notes.append(f"the operator's stop of {app.name} ends: the desired state changed "
+                         f"since it was last applied (from {applied.source})")
+            record = record.with_app(app.name, app.model_copy(update={"held": False}))
+    return record, notes
