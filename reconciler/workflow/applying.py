@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
     from reconciler.engine.execution.lock import Lock
     from reconciler.engine.execution.ports import Gate, Listener
-    from reconciler.workflow.sync import Followed
+    from reconciler.workflow.followed import Followed
     from schemas.desired import DesiredState
     from schemas.plan import Plan
     from schemas.record import AppRecord, DesiredRef
@@ -112,7 +112,7 @@ def _end_override(machine: Machine, options: ApplyOptions, report: Report) -> Fo
     the agent applied (None: no override, or the agent never applied one)."""
     from reconciler.engine.execution.lock import apply_lock
     from reconciler.workflow import override
-    from reconciler.workflow.sync import applied_desired
+    from reconciler.workflow.followed import applied_desired
 
     with apply_lock(machine.layout, timeout=options.lock_wait()):
         if override.end(machine, report) is None:

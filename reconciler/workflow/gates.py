@@ -19,7 +19,7 @@ from reconciler.workflow.machine import Machine
 if TYPE_CHECKING:
     from reconciler.core.vehicle.policy import GateState
     from reconciler.engine.execution.ports import Gate, Listener
-    from reconciler.workflow.sync import Followed
+    from reconciler.workflow.followed import Followed
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ def in_force(machine: Machine, file: Path | None) -> Followed | None:
     the agent's. One that cannot be read leaves the gates unknown, which is refused rather
     than guessed; `file` given but absent: none."""
     from reconciler.core.documents import load_desired_document
-    from reconciler.workflow.sync import Followed, applied_desired
+    from reconciler.workflow.followed import Followed, applied_desired
 
     path = file if file is not None else machine.layout.desired_state
     try:

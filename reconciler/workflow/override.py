@@ -25,7 +25,7 @@ from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
 
 if TYPE_CHECKING:
-    from reconciler.workflow.sync import Followed
+    from reconciler.workflow.followed import Followed
     from schemas.override import LocalOverride
 
 
@@ -70,8 +70,8 @@ def _seed(machine: Machine) -> str | None:
     """The fleet's file at the revision the car applied, as text, with its relative URLs
     and files made absolute; None before the agent applied any revision."""
     from reconciler.base.loading import dump, load
+    from reconciler.workflow.followed import applied_desired, read_status
     from reconciler.workflow.source import SOURCE_KEY
-    from reconciler.workflow.sync import applied_desired, read_status
 
     found = applied_desired(machine)
     revision = read_status(machine).applied_revision
@@ -109,7 +109,7 @@ def begin(machine: Machine, *, by: str, seeded: bool) -> LocalOverride | None:
     """Record that a local edit (by `by`) was applied; on a car that follows no fleet an
     edit is no override (None). The first edit's time and starting point are kept."""
     from reconciler.base.atomic import write_atomic
-    from reconciler.workflow.sync import read_status
+    from reconciler.workflow.followed import read_status
     from schemas.override import LocalOverride
 
     if not follows_fleet(machine):
