@@ -142,12 +142,11 @@ def _damaged(common: dict[str, str], damage: str) -> Row:
 
 def rows(
     layout: Layout, *, record: StateRecord | None = None, store: Objects | None = None,
-    live: UnitState | None = None, lives: Mapping[str, UnitState] | None = None,
+    lives: Mapping[str, UnitState] | None = None,
 ) -> list[Row]:
     """Every app of every recorded repository at its recorded commit, and each installed
     app even when no catalog lists it any more (it may be the one that holds the CAN
-    hardware). `lives`: each installed app's unit as its manager sees it, by name; `live`,
-    the one-app world's only app's."""
+    hardware). `lives`: each installed app's unit as its manager sees it, by name."""
     if store is None:
         from reconciler.adapters.git import GitStore
 
@@ -155,7 +154,7 @@ def rows(
     if record is None:
         record = read_record(layout)
     if lives is None:
-        lives = {} if live is None or record.app is None else {record.app.name: live}
+        lives = {}
     table: list[Row] = []
     for repo in record.repositories:
         common = {"repository": repo.key, "ref": repo.ref or "(default)",
