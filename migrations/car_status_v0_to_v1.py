@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from migrations import agent_status_v1_to_v2
+from migrations.agent_status_v1_to_v2 import upgrade as upgrade_agent_status
 from migrations.step import MigrationError
 
 
@@ -24,7 +24,7 @@ def upgrade(doc: dict[str, Any]) -> dict[str, Any]:
                              hint="the car publishes a new one with its next status")
     if agent.get("version") == 1:
         try:
-            agent = agent_status_v1_to_v2.upgrade(agent)
+            agent = upgrade_agent_status(agent)
         except MigrationError as exc:
             raise MigrationError(exc.message, loc=("agent", *exc.loc), hint=exc.hint) from None
     return dict(doc, version=1, agent=agent)

@@ -97,14 +97,6 @@ def read_bounded(
     return data
 
 
-def is_regular(path: Path) -> bool:
-    """True when `path` itself (not a link's target) is a regular file."""
-    try:
-        return stat.S_ISREG(os.lstat(path).st_mode)
-    except OSError:
-        return False
-
-
 def open_append(path: Path, *, mode: int = 0o644) -> int:
     """An O_APPEND descriptor for one of lpam's own logs, never through a symbolic link
     (a planted `debug.log -> /etc/passwd` must not be written through)."""

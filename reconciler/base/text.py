@@ -2,10 +2,13 @@
 
 A terminal interprets control characters (an escape sequence can rewrite the screen, a
 carriage return hide what came before it), and a value can be megabytes long: what lpam
-echoes goes through here. Pure, and imports nothing of lpam, so every layer may use it.
+echoes goes through here; `columns` lines such text up in a table. Pure, and imports
+nothing of lpam, so every layer may use it.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 MESSAGE_LIMIT = 400
 
@@ -29,3 +32,11 @@ def shorten(text: str, limit: int = MESSAGE_LIMIT) -> str:
     keep = max(limit - 20, 20)
     return f"{text[: keep * 3 // 4]} … ({len(text) - keep} characters left out) … " \
         f"{text[len(text) - keep // 4:]}"
+
+
+def columns(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    """The lines of a table: each column as wide as its widest cell, two spaces between
+    columns, no trailing spaces (`lpam status`, `lpam fleet status`)."""
+    widths = [max(len(h), *(len(row[i]) for row in rows)) for i, h in enumerate(header)]
+    return ["  ".join(v.ljust(w) for v, w in zip(row, widths)).rstrip()
+            for row in [header, *rows]]

@@ -13,7 +13,6 @@ it returns and reports, and returns the exit code.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import gc
 import json
 import os
@@ -24,10 +23,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from reconciler import __version__
-from reconciler.base.errors import LpamError, Terminated
+from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS, Layout
 from reconciler.base.text import printable
-from reconciler.frontends.console import Terminal, debug_log, now, terminate
+from reconciler.frontends.console import Terminal, debug_log, exit_code, now, terminate
 from reconciler.workflow.defaults import SCRIPT_TIMEOUT
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
@@ -274,27 +273,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     signal.signal(signal.SIGTERM, terminate)
     layout = _layout(args)
-    try:
-        return int(COMMANDS[args.command](args, layout))
-    except LpamError as exc:
-        print(exc.render(), file=sys.stderr)
-        return exc.exit_code
-    except BrokenPipeError:  # `lpam plan | head`: the reader left; nothing more to say
-        with contextlib.suppress(OSError):
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return EXIT_OK
-    except (KeyboardInterrupt, Terminated) as exc:
-        if args.command in CHANGES_THE_CAR:
-            print("interrupted: lpam recorded where it stood (a script under way is stopped "
-                  f"with its whole process group); run `{again(args)}` to resume",
-                  file=sys.stderr)
-        else:
-            print("interrupted: nothing was changed", file=sys.stderr)
-        return 143 if isinstance(exc, Terminated) else 130
-    except Exception:  # a bug: keep the traceback away from the user, but keep it
-        log = debug_log(layout)
-        print(f"error: internal error in lpam {__version__}; details in {log}", file=sys.stderr)
-        return EXIT_ERROR
+    return exit_code(
+        lambda: int(COMMANDS[args.command](args, layout)), bug=lambda: debug_log(layout),
+        failed=lambda exc: exc.render(), interrupted=lambda: _interrupted(args),
+        internal=lambda log: f"error: internal error in lpam {__version__}; details in {log}")
+
+
+def _interrupted(args: argparse.Namespace) -> str:
+    if args.command in CHANGES_THE_CAR:
+        return ("interrupted: lpam recorded where it stood (a script under way is stopped "
+                f"with its whole process group); run `{again(args)}` to resume")
+    return "interrupted: nothing was changed"
 
 
 CHANGES_THE_CAR = ("apply", "sync", "agent", "start", "stop", "restart", "rollback")

@@ -1,6 +1,7 @@
 """What the three frontends — `lpam`, `libpanda-app-manager` and `lpam ble` — share as
-callers of the workflow: how events are shown in a terminal, where the traceback of a bug
-goes (never to the user), and SIGTERM raised where lpam stands.
+callers of the workflow: how events are shown in a terminal, the guard that turns what ends
+a request badly into the face's one line (a bug's traceback goes to the debug log, never to
+the user), and SIGTERM raised where lpam stands.
 
 Below the frontends and above the workflow (`.importlinter`): written once, so that the
 shim does not reach into the CLI's private names and the Bluetooth service logs a bug the
@@ -9,16 +10,23 @@ way the CLI does.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import traceback
+from collections.abc import Callable
 from datetime import datetime, timezone
+from typing import TypeVar
 
 from reconciler import __version__
 from reconciler.base.errors import LpamError, Terminated
 from reconciler.base.layout import Layout
 from reconciler.base.text import printable
 from reconciler.workflow.events import Event
+
+T = TypeVar("T")
+
+EXIT_BUG, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 130, 143  # 128 + SIGINT, 128 + SIGTERM
 
 
 def now() -> datetime:
@@ -46,6 +54,66 @@ def debug_log(layout: Layout) -> str:
     finally:
         os.close(fd)
     return str(layout.debug_log)
+
+
+def guarded(
+    body: Callable[[], T], *, bug: Callable[[], str], internal: Callable[[Exception, str], T],
+    failed: Callable[[LpamError], T] | None = None,
+    interrupted: Callable[[BaseException], T] | None = None,
+    closed: Callable[[], T] | None = None,
+) -> T:
+    """`body()`, or the face's answer to what ended it: no traceback reaches a user.
+
+    A bug — an exception the face names no answer for — has its traceback written by
+    `bug` (to the debug log: `debug_log`), and `internal(exc, where)` answers, pointing
+    there. A command names the rest (`exit_code`): `failed`, a user's error; `interrupted`,
+    Ctrl-C or SIGTERM (`Terminated`); `closed`, its stdout closed by the reader. The
+    Bluetooth service names none: the phone's answers name each request's failure, so an
+    LpamError that reaches its guard is a bug, and its loop stops on its own signals.
+    """
+    try:
+        return body()
+    except LpamError as exc:
+        return internal(exc, bug()) if failed is None else failed(exc)
+    except BrokenPipeError as exc:
+        return internal(exc, bug()) if closed is None else closed()
+    except (KeyboardInterrupt, Terminated) as exc:
+        if interrupted is None:
+            raise
+        return interrupted(exc)
+    except Exception as exc:  # a bug: keep the traceback away from the user, but keep it
+        return internal(exc, bug())
+
+
+def exit_code(
+    body: Callable[[], int], *, bug: Callable[[], str], failed: Callable[[LpamError], str],
+    interrupted: Callable[[], str], internal: Callable[[str], str],
+) -> int:
+    """A command's guard (`lpam`, `libpanda-app-manager`): `body`'s exit code, or one line
+    on stderr and the code of what ended it — a user's error its own (`LpamError.exit_code`),
+    an interrupt 130 (Ctrl-C) or 143 (SIGTERM), a bug 1 with `internal(where)` pointing at
+    its traceback. A stdout closed by its reader (`lpam plan | head`) ends quietly with 0."""
+
+    def said(line: str, code: int) -> int:
+        print(line, file=sys.stderr)
+        return code
+
+    return guarded(
+        body, bug=bug,
+        failed=lambda exc: said(failed(exc), exc.exit_code),
+        interrupted=lambda exc: said(interrupted(), EXIT_TERMINATED
+                                     if isinstance(exc, Terminated) else EXIT_INTERRUPTED),
+        closed=_closed,
+        internal=lambda exc, where: said(internal(where), EXIT_BUG),
+    )
+
+
+def _closed() -> int:
+    """The reader of stdout left: nothing more to say, and nothing more said (Python's
+    flush of stdout at exit would fail again)."""
+    with contextlib.suppress(OSError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return 0
 
 
 class Terminal:

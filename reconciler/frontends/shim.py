@@ -22,7 +22,6 @@ written as a space.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import sys
@@ -31,9 +30,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.base.errors import LpamError, Terminated
+from reconciler.base.errors import LpamError
 
 if TYPE_CHECKING:
+    from reconciler.base.layout import Layout
     from reconciler.workflow.applying import ApplyOptions
     from reconciler.workflow.events import Report
     from reconciler.workflow.inventory import AppRow
@@ -226,16 +226,25 @@ def _report() -> Report:
     return Terminal()
 
 
-def _machine() -> Machine:
+def _layout() -> Layout:
     from reconciler.base.layout import Layout
-    from reconciler.workflow.machine import Machine
 
     root = os.environ.get("LPAM_ROOT") or "/"
-    return Machine.at(Layout(Path(root).resolve()))
+    return Layout(Path(root).resolve())
+
+
+def _machine() -> Machine:
+    from reconciler.workflow.machine import Machine
+
+    return Machine.at(_layout())
+
+
+def _error(message: str) -> str:
+    return f"{PROG}: error: {message}"
 
 
 def _fail(message: str) -> None:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
+    print(_error(message), file=sys.stderr)
 
 
 def one_line(exc: LpamError) -> str:
@@ -247,8 +256,7 @@ def one_line(exc: LpamError) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from reconciler.base.layout import Layout
-    from reconciler.frontends.console import debug_log, terminate
+    from reconciler.frontends.console import debug_log, exit_code, terminate
 
     try:
         command = parse(sys.argv[1:] if argv is None else argv)
@@ -259,23 +267,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(USAGE)
         return EXIT_OK
     signal.signal(signal.SIGTERM, terminate)
-    try:
+
+    def body() -> int:
         run(_machine(), command)
-    except LpamError as exc:
-        _fail(one_line(exc))
-        return exc.exit_code
-    except BrokenPipeError:  # `libpanda-app-manager -d | head -1`: the reader left
-        with contextlib.suppress(OSError):
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
-    except (KeyboardInterrupt, Terminated) as exc:
-        _fail("interrupted: lpam recorded where it stood; `lpam apply` goes on from there")
-        return 143 if isinstance(exc, Terminated) else 130
-    except Exception:  # a bug: the traceback goes to lpam's debug log, never to the user
-        root = os.environ.get("LPAM_ROOT") or "/"
-        _fail(f"internal error; details in {debug_log(Layout(Path(root).resolve()))}")
-        return 1
-    return EXIT_OK
+
+    return exit_code(
+        body, bug=lambda: debug_log(_layout()), failed=lambda exc: _error(one_line(exc)),
+        interrupted=lambda: _error("interrupted: lpam recorded where it stood; `lpam apply` "
+                                   "goes on from there"),
+        internal=lambda log: _error(f"internal error; details in {log}"))
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from reconciler.base.errors import ConfigError, GitError, StoreDamagedError
 from reconciler.base.layout import Layout
-from reconciler.base.text import printable
+from reconciler.base.text import columns, printable
 from reconciler.core.documents import parse_catalog
 from reconciler.engine.records.state import read_agent_status, read_record
 from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
@@ -345,11 +345,7 @@ def as_table(layout: Layout, *, store: Objects | None = None,
             ["No app repositories. Write a desired state and run `lpam apply`.", *strays])
     cells = [[_cell(getattr(r, c)) for c in COLUMNS] for r in table]
     header = [c.capitalize() for c in COLUMNS]
-    widths = [max(len(h), *(len(row[i]) for row in cells)) for i, h in enumerate(header)]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip()]
-    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths)).rstrip()
-              for row in cells]
-    return "\n".join([*lines, *strays])
+    return "\n".join([*columns(header, cells), *strays])
 
 
 def _footer(layout: Layout, record: StateRecord, lives: Mapping[str, UnitState],

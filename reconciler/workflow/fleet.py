@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from reconciler.base.errors import ConfigError
-from reconciler.base.text import printable
+from reconciler.base.text import columns, printable
 from schemas.fleet import CarStatus
 
 PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
@@ -136,10 +136,7 @@ def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
              for r in rows]
     cells = [tuple(printable(v)[:60] for v in row)
              for row in cells]
-    widths = [max(len(h), *(len(row[i]) for row in cells)) for i, h in enumerate(header)]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)).rstrip()]
-    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths)).rstrip()
-              for row in cells]
+    lines = columns(header, cells)
     lines.append(f"\nThe cars follow {(tip or 'an unknown revision')[:12]}. A car reports "
                  "when its status changes and at least every\nheartbeat (agent.yaml "
                  "heartbeat_seconds, 6 h unless set): a much older report means it is off "

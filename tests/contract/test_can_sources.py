@@ -34,6 +34,7 @@ import pytest
 from reconciler.adapters.can.csvlog import HEADER
 from reconciler.adapters.can.sources import FrameSource, open_source
 from reconciler.base.errors import VehicleSourceError
+from schemas.vehicle import BUS_INTERFACES
 from tests.canlog import (
     CandumpWriter,
     CsvWriter,
@@ -454,3 +455,12 @@ def test_a_bus_source_names_where_it_listens(feed: Callable[..., Feed]) -> None:
     port = f.extras["server"].port
     assert f.source.description == f"socketcand can0 at 127.0.0.1:{port}"
     assert f.source.skipped == 0
+
+
+def test_a_desired_state_may_name_every_interface_python_can_ships() -> None:
+    """schemas/ imports no CAN library, so schemas/vehicle.py writes out the names a
+    desired state's `bus: {interface: …}` may use; they must be the ones this python-can
+    ships (its BACKENDS less any a plugin adds from outside can.interfaces)."""
+    shipped = {name for name, (module, _) in can.interfaces.BACKENDS.items()
+               if module.startswith("can.interfaces.")}
+    assert tuple(sorted(shipped)) == BUS_INTERFACES

@@ -385,7 +385,7 @@ def test_step_raises_migration_error_with_location() -> None:
 def test_every_document_kind_has_a_version_a_chain_a_label_and_a_hint() -> None:
     """The registry is closed over DocumentKind: a kind added without its entries fails
     here, not on the first document of that kind a car reads."""
-    from migrations import _LABELS, _MISSING_HINTS
+    from migrations.registry import _LABELS, _MISSING_HINTS
 
     for registry in (CURRENT, STEPS, _LABELS, _MISSING_HINTS):
         assert set(registry) == set(DocumentKind)

@@ -21,6 +21,7 @@ from collections.abc import Callable
 from concurrent.futures import CancelledError
 
 from reconciler.base.errors import Deferred, LpamError, StateWriteError, StopRequested, Terminated
+from reconciler.base.layout import KEEP_GENERATIONS
 from reconciler.engine.execution.collection import prune
 from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.ports import Gate, Held
@@ -43,7 +44,6 @@ from schemas.generation import AppGeneration
 from schemas.plan import CheckoutStep, Phase, Plan, Step
 from schemas.record import AppRecord
 
-KEEP_GENERATIONS = 3
 CHECKOUT_WORKERS = 4  # checkouts wait on the disk more than on the CPU
 
 

@@ -17,6 +17,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Union
 
 from reconciler.adapters.bluez.shape import Characteristic
@@ -24,6 +25,7 @@ from reconciler.core.privzone import messages as m
 from reconciler.core.privzone.framing import Delivery, Inbox, encode_status
 from reconciler.frontends.ble import answers
 from reconciler.frontends.ble.temperature import Thermometer
+from reconciler.frontends.console import guarded
 from reconciler.workflow.events import Event, Report
 from reconciler.workflow.machine import Machine
 
@@ -125,18 +127,20 @@ class Bridge:
             if job is None:
                 return
             self._log(f"request from {job.device or 'a phone'}: {job.work!r}")
-            try:
-                answer = self._answer(job.work)
-            except Exception as exc:  # a bug must not end the service: said, and logged
-                self._log(f"internal error on {job.work!r}: {exc!r}; details in {self._bug()}")
-                answer = answers.Answer(status=f"Internal error in lpam ({type(exc).__name__}); "
-                                        "details in its debug log")
+            # a bug must not end the service: said to the phone, and logged
+            answer = guarded(partial(self._answer, job.work), bug=self._bug,
+                             internal=partial(self._internal, job.work))
             for index, chunk in enumerate(answer.output):
                 if index:
                     time.sleep(PACE)
                 self._notify(Characteristic.OUTPUT, chunk)
             if answer.status is not None:
                 self.status(answer.status)
+
+    def _internal(self, work: Work, exc: Exception, where: str) -> answers.Answer:
+        self._log(f"internal error on {work!r}: {exc!r}; details in {where}")
+        return answers.Answer(status=f"Internal error in lpam ({type(exc).__name__}); "
+                              "details in its debug log")
 
     def _answer(self, work: Work) -> answers.Answer:
         report: Report = self._report

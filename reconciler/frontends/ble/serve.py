@@ -30,8 +30,6 @@ STOP_WAIT = 900.0
 """Seconds a stop waits for the request running to reach a safe point (the unit's
 TimeoutStopSec is the same: adapters/services/agentunits.py)."""
 
-DEFAULT_ADAPTER = "/org/bluez/hci0"
-
 
 def serve(machine: Machine, *, bus_address: str | None, adapter: str,
           log: Callable[[str], None], bug: Callable[[], str]) -> int:
