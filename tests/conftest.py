@@ -11,6 +11,23 @@ import pytest
 from tests.gitserver import GitDaemon, RepoBuilder
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_configure(config: pytest.Config) -> None:
+    """A pytest-xdist worker keeps its temporary folders in `<basetemp>/gw0`, not in the
+    `<basetemp>/popen-gw0` xdist names: a unix socket's path holds at most 107 bytes, and
+    lpam refuses a root whose supervisord socket (`<root>/run/lpam/supervisor.sock`, plus
+    the `.<pid>` supervisord binds first) would not fit. A test's root is
+    `/tmp/pytest-of-USER/pytest-N/<test name, 31 bytes>/root`; the six bytes saved keep
+    every test's socket within the limit, as in a serial run. Runs before the tmp_path
+    plugin reads the option (tryfirst)."""
+    worker = getattr(config, "workerinput", None)
+    given = config.option.basetemp
+    if worker is not None and given:
+        path = Path(given)
+        if path.name.startswith("popen-"):
+            config.option.basetemp = str(path.with_name(str(worker["workerid"])))
+
+
 @pytest.fixture(autouse=True)
 def hermetic_env(
     tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
