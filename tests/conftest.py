@@ -3,12 +3,39 @@
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 from tests.gitserver import GitDaemon, RepoBuilder
+
+
+@pytest.hookimpl(tryfirst=True)  # before the tmp_path plugin reads --basetemp
+def pytest_configure(config: pytest.Config) -> None:
+    """Two things of the process that runs the tests, whether pytest runs them itself or a
+    pytest-xdist worker does.
+
+    SIGINT is Ctrl-C, even when the suite was started in the background (a script's
+    `cmd &`, often with nohup), which ignores it: every lpam a test starts would inherit the
+    ignored SIGINT, and the tests that press Ctrl-C on an apply would wait for it in vain.
+
+    A worker keeps its temporary folders in `<basetemp>/gw0`, not in the
+    `<basetemp>/popen-gw0` xdist names. A unix socket's path holds at most 107 bytes, and
+    lpam refuses a root whose supervisord socket (`<root>/run/lpam/supervisor.sock`, and
+    the `.<pid>` supervisord binds first) would not fit; a test's root is
+    `/tmp/pytest-of-USER/pytest-N/<test name, up to 32 bytes>/root`. The six bytes saved
+    keep every test's socket within the limit, with a few bytes to spare, as in a serial
+    run."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    worker = getattr(config, "workerinput", None)
+    given = config.option.basetemp
+    if worker is not None and given:
+        path = Path(given)
+        if path.name.startswith("popen-"):
+            config.option.basetemp = str(path.with_name(str(worker["workerid"])))
 
 
 @pytest.fixture(autouse=True)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import socket
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -48,6 +47,7 @@ from tests.canlog import (
     write_candump,
     write_csv,
 )
+from tests.gitserver import closed_port
 from tests.hostile_servers import HostileServer
 from tests.socketcand import SocketcandServer
 
@@ -275,8 +275,7 @@ def test_a_garbled_socketcand_frame_ends_the_bus_stream_quietly(
     in its buffer): the source goes silent rather than raise."""
     f = feed("bus")
     assert collect(f.source, 0.3)[0]
-    f.extras["server"].inject("< frame XYZ 1.0 00 >")
-    time.sleep(0.05)
+    f.extras["server"].inject("< frame XYZ 1.0 00 >")  # in the source's socket on return
     got, late = collect(f.source, 0.5)
     assert 0 <= late < LATE
     again, _ = collect(f.source, 0.3)
@@ -392,15 +391,10 @@ def test_a_repointed_link_is_followed_to_the_new_recording(feed: Callable[..., F
 
 # --- errors --------------------------------------------------------------------------------
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def _cases(tmp: Path, hostile_port: int, server: SocketcandServer) -> dict[str, tuple[
-        dict[str, Any], list[str], str]]:
-    """name -> (open_source arguments, words the message must hold, words of the hint)."""
+def _cases(tmp: Path, hostile_port: int, server: SocketcandServer, closed: int
+           ) -> dict[str, tuple[dict[str, Any], list[str], str]]:
+    """name -> (open_source arguments, words the message must hold, words of the hint);
+    `closed`: a port that refuses connections."""
     (tmp / "folder").mkdir()
     (tmp / "dangling.csv").symlink_to(tmp / "gone.csv")
     (tmp / "notes.txt").write_text("hello\n")
@@ -424,7 +418,7 @@ def _cases(tmp: Path, hostile_port: int, server: SocketcandServer) -> dict[str, 
         "bus-socketcand-no-host": ({"bus": {"interface": "socketcand", "channel": "can0"}},
                                    ["needs a host"], "port"),
         "bus-nothing-listening": ({"bus": {"interface": "socketcand", "host": "127.0.0.1",
-                                           "port": _free_port(), "channel": "can0"}},
+                                           "port": closed, "channel": "can0"}},
                                   ["cannot connect", "refused"], "socketcand running"),
         "bus-silent-server": ({"bus": {"interface": "socketcand", "host": "127.0.0.1",
                                        "port": hostile_port, "channel": "can0"},
@@ -437,8 +431,10 @@ def _cases(tmp: Path, hostile_port: int, server: SocketcandServer) -> dict[str, 
 
 
 def test_every_fault_opening_a_source_is_one_line_that_says_what_to_do(tmp_path: Path) -> None:
-    with HostileServer() as hostile, SocketcandServer(drive()[:10]) as server:
-        for name, (arguments, words, hint) in _cases(tmp_path, hostile.port, server).items():
+    with HostileServer() as hostile, SocketcandServer(drive()[:10]) as server, \
+            closed_port() as closed:
+        cases = _cases(tmp_path, hostile.port, server, closed)
+        for name, (arguments, words, hint) in cases.items():
             began = time.monotonic()
             with pytest.raises(VehicleSourceError) as caught:
                 open_source(**arguments)

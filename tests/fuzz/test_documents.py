@@ -17,7 +17,6 @@ document that ever broke this is kept in tests/fixtures/fuzz/<kind>/ and replaye
 from __future__ import annotations
 
 import json
-import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -31,8 +30,9 @@ from reconciler.base.layout import Layout
 from reconciler.core.documents import load_desired, load_plan, parse_catalog
 from reconciler.engine.records.legacy import import_lpam
 from reconciler.engine.records.state import read_record
+from tests.lengths import knob
 
-EXAMPLES = int(os.environ.get("LPAM_FUZZ_EXAMPLES", "150"))
+EXAMPLES = knob("LPAM_FUZZ_EXAMPLES", 150, 10000)  # LPAM_LONG=1: 10,000 (tests/lengths.py)
 MESSAGE_LIMIT = 600  # the path, line and column come on top of LpamError's 400
 ROOT = Path(__file__).resolve().parents[2]
 CORPUS = ROOT / "tests" / "fixtures" / "fuzz"

@@ -21,6 +21,7 @@ from reconciler.core.documents import load_agent
 from reconciler.workflow.agent import Agent, next_wait
 from reconciler.workflow.events import Event, Progress
 from reconciler.workflow.machine import Machine
+from tests.contract.test_services import wait_for
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam
 from tests.integration.conftest import fleet_state
@@ -104,9 +105,11 @@ def test_sigterm_between_passes_stops_the_agent_process_at_once(
 ) -> None:
     config = car.root / "etc/lpam/agent.yaml"
     config.write_text(config.read_text() + "interval_seconds: 600\n")
-    proc = subprocess.Popen([sys.executable, "-m", "reconciler", "--root", str(car.root),
-                             "agent"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env=dict(os.environ), start_new_session=True)
+    output = tmp_path / "agent.out"
+    with output.open("w") as sink:
+        proc = subprocess.Popen([sys.executable, "-m", "reconciler", "--root", str(car.root),
+                                 "agent"], stdout=sink, stderr=subprocess.STDOUT,
+                                text=True, env=dict(os.environ), start_new_session=True)
     try:
         status = car.root / "var/lib/lpam/status.json"
         deadline = time.monotonic() + 60
@@ -114,10 +117,12 @@ def test_sigterm_between_passes_stops_the_agent_process_at_once(
                 status.exists() and json.loads(status.read_text()).get("applied_revision")):
             time.sleep(0.2)
         assert status.exists(), "the first pass did not finish"
-        time.sleep(0.5)  # into the 10-minute wait
+        # into the 10-minute wait: the agent says so just before it begins
+        assert wait_for(lambda: "next pass in" in output.read_text(), 60), output.read_text()
         started = time.monotonic()
         proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=20)
+        proc.wait(timeout=20)
+        out = output.read_text()
         assert proc.returncode == 0, out
         assert time.monotonic() - started < 10
         assert "next pass in" in out and "agent stopped" in out

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.gitserver import GitDaemon, RepoBuilder, free_port
+from tests.gitserver import GitDaemon, RepoBuilder, closed_port
 from tests.integration.apps import Lpam, apps_repo, desired
 
 TOP = Path(__file__).resolve().parents[2]
@@ -50,18 +50,19 @@ def test_bad_input_gets_a_clear_error_and_changes_nothing(
     path = lpam.desired(desired(url, "alpha"))
     assert lpam("apply", "--yes").returncode == 0
     before, events = lpam.status(), lpam.events()
-    closed = f"git://127.0.0.1:{free_port()}/apps.git"
-    for name, content, expected in bad_inputs(url, closed):
-        path.write_bytes(content)
-        for command in (["plan"], ["apply", "--yes"]):
-            done = lpam(*command)
-            assert done.returncode == 1, (name, command, done.stdout, done.stderr)
-            assert expected in done.stderr, (name, done.stderr)
-            assert "Traceback" not in done.stderr + done.stdout, name
-            assert done.stderr.startswith("error: "), name
-            assert len(done.stderr.strip().splitlines()) <= 2, (name, done.stderr)
-        assert lpam.status() == before, name
-        assert lpam.events() == events, name
+    with closed_port() as port:
+        closed = f"git://127.0.0.1:{port}/apps.git"
+        for name, content, expected in bad_inputs(url, closed):
+            path.write_bytes(content)
+            for command in (["plan"], ["apply", "--yes"]):
+                done = lpam(*command)
+                assert done.returncode == 1, (name, command, done.stdout, done.stderr)
+                assert expected in done.stderr, (name, done.stderr)
+                assert "Traceback" not in done.stderr + done.stdout, name
+                assert done.stderr.startswith("error: "), name
+                assert len(done.stderr.strip().splitlines()) <= 2, (name, done.stderr)
+            assert lpam.status() == before, name
+            assert lpam.events() == events, name
 
 
 def test_unreachable_server_gives_up_in_bounded_time(tmp_path: Path) -> None:

@@ -115,12 +115,17 @@ def test_two_concurrent_applies_install_once(
 def test_second_apply_fails_clearly_when_the_lock_is_held(
     tmp_path: Path, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:
-    apps_repo(make_repo("apps.git"), alpha={"install": 'touch "$LPAM_ROOT/in-install"; sleep 5'})
+    apps_repo(make_repo("apps.git"), alpha={"install": (  # holds the lock until released
+        'touch "$LPAM_ROOT/in-install"\n'
+        'for _ in $(seq 600); do [ -e "$LPAM_ROOT/release" ] && break; sleep 0.05; done')})
     lpam = Lpam(tmp_path / "root")
     lpam.desired(desired(git_daemon.url("apps.git"), "alpha"))
     first = lpam.spawn("apply", "--yes")
-    wait_for(lpam.root / "in-install")
-    second = lpam("apply", "--yes", "--lock-timeout", "0.5")
+    try:
+        wait_for(lpam.root / "in-install")
+        second = lpam("apply", "--yes", "--lock-timeout", "0.5")
+    finally:
+        (lpam.root / "release").touch()
     assert second.returncode == 1
     assert "another lpam apply" in second.stderr and "--lock-timeout" in second.stderr
     first.communicate(timeout=60)

@@ -26,6 +26,7 @@ import pytest
 
 from reconciler.adapters.services.supervisor import shutdown
 from reconciler.base.layout import Layout
+from tests.contract.test_services import alive, wait_for
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, apps_repo, desired, processes
 
@@ -145,6 +146,14 @@ def supervisord_pid(root: Path) -> int:
     return int((root / "run/lpam/supervisord.pid").read_text())
 
 
+def kill_9_supervisord(root: Path) -> None:
+    """`kill -9` of this root's supervisord, returning once it is dead (or a zombie that
+    init has not reaped yet); the programs it ran live on."""
+    pid = supervisord_pid(root)
+    os.kill(pid, signal.SIGKILL)
+    assert wait_for(lambda: not alive(pid), 10), f"supervisord {pid} survived kill -9"
+
+
 def running_steady(lpam: Lpam, url: str) -> None:
     lpam.desired(desired(url, "steady"))
     done = lpam("apply", "--yes")
@@ -210,8 +219,7 @@ def test_kill_9_of_supervisord_is_seen_and_never_gives_a_second_copy(
 ) -> None:
     running_steady(lpam, url)
     [orphan] = bus_holders(lpam.root)
-    os.kill(supervisord_pid(lpam.root), signal.SIGKILL)
-    time.sleep(0.3)
+    kill_9_supervisord(lpam.root)
     status = lpam.status()
     assert status["app"]["running"] is True  # it does run, unsupervised
     assert status["app"]["unit"]["supervised"] is False
@@ -234,8 +242,7 @@ def test_stop_and_shutdown_end_what_a_killed_supervisord_left_running(
     lpam: Lpam, url: str, command: tuple[str, ...]
 ) -> None:
     running_steady(lpam, url)
-    os.kill(supervisord_pid(lpam.root), signal.SIGKILL)
-    time.sleep(0.3)
+    kill_9_supervisord(lpam.root)
     done = lpam(*command)
     assert done.returncode == 0, done.stderr
     assert "No supervisord was running" not in done.stdout

@@ -93,6 +93,16 @@ def starts(lpam: Lpam) -> list[list[str]]:
     return [line.split() for line in log.read_text().splitlines()] if log.exists() else []
 
 
+def held_install(marker: str) -> str:
+    """An install.sh that touches `$LPAM_ROOT/<marker>` and then, while `$LPAM_ROOT/hold`
+    exists, runs on until the test creates `$LPAM_ROOT/release` (30 s at most): the test
+    acts while the script runs, however long a busy machine takes to get there."""
+    return (f'touch "$LPAM_ROOT/{marker}"\n'
+            'if [ -e "$LPAM_ROOT/hold" ]; then\n'
+            '  for _ in $(seq 600); do [ -e "$LPAM_ROOT/release" ] && break; sleep 0.05; done\n'
+            'fi')
+
+
 def test_a_scriptless_app_runs_under_supervisord_and_status_asks_it(
     lpam: Lpam, repo: RepoBuilder, git_daemon: GitDaemon
 ) -> None:
@@ -263,8 +273,7 @@ def test_a_kill_during_a_rollback_converges_to_one_app(
 ) -> None:
     builder = make_repo("slow.git")
     builder.write("libpanda-apps.yaml", "apps:\n  - name: alpha\n  - name: beta\n")
-    add_app(builder, "alpha", extra={
-        "install": 'touch "$LPAM_ROOT/alpha-installing"; sleep 1.5'})
+    add_app(builder, "alpha", extra={"install": held_install("alpha-installing")})
     add_app(builder, "beta", extra={"start": "exit 1"})
     builder.commit("alpha installs slowly, beta never starts")
     builder.push()
@@ -273,14 +282,18 @@ def test_a_kill_during_a_rollback_converges_to_one_app(
     assert lpam("apply", "--yes").returncode == 0
     (lpam.root / "alpha-installing").unlink()
     lpam.desired(desired(url, "beta"))
+    (lpam.root / "hold").touch()
     proc = lpam.spawn("apply", "--yes")
     marker = lpam.root / "alpha-installing"
-    deadline = time.monotonic() + 60
-    while not marker.exists() and time.monotonic() < deadline:  # the rollback reinstalls
-        time.sleep(0.05)
-    assert marker.exists()
-    os.killpg(proc.pid, signal.SIGKILL)  # lpam and the script: a power cut, as far as we care
-    proc.wait(timeout=10)
+    try:
+        deadline = time.monotonic() + 60
+        while not marker.exists() and time.monotonic() < deadline:  # the rollback reinstalls
+            time.sleep(0.05)
+        assert marker.exists()
+        os.killpg(proc.pid, signal.SIGKILL)  # lpam and the script: a power cut, as far as we care
+        proc.wait(timeout=10)
+    finally:
+        (lpam.root / "release").touch()  # the orphaned install.sh ends
     again = lpam("apply", "--yes")  # beta fails again and is rolled back again
     assert again.returncode == 1
     final = lpam.status()["app"]
@@ -304,8 +317,11 @@ def test_a_rollback_interrupted_by_ctrl_c_names_the_command_that_finishes_it(
     brings back the generation the rollback was returning to. (Another `lpam rollback`
     would go one generation further back: the field trial of issue 20 found lpam naming it.)"""
     first, proc = _rollback_reinstalling_v1(lpam, make_repo("resume.git"), git_daemon)
-    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C in the terminal
-    _, err = proc.communicate(timeout=30)
+    try:
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C in the terminal
+        _, err = proc.communicate(timeout=30)
+    finally:
+        (lpam.root / "release").touch()
     assert proc.returncode == 130, err
     hint = err.split("run `", 1)[1].split("`", 1)[0]
     assert hint.split()[:3] == ["lpam", "--root", str(lpam.root)]
@@ -324,11 +340,14 @@ def test_a_rollback_cut_off_by_a_kill_is_finished_by_the_next_apply(
     lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:
     first, proc = _rollback_reinstalling_v1(lpam, make_repo("versions.git"), git_daemon)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait(timeout=10)
-    git_daemon.stop()  # finishing a rollback needs no network
-    plan = lpam("plan", "--offline")
-    assert "the rollback to alpha" in plan.stderr and "install:alpha@" in plan.stdout
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)  # lpam: its install.sh runs on, held
+        proc.wait(timeout=10)
+        git_daemon.stop()  # finishing a rollback needs no network
+        plan = lpam("plan", "--offline")  # while the cut-off install.sh still runs
+        assert "the rollback to alpha" in plan.stderr and "install:alpha@" in plan.stdout
+    finally:
+        (lpam.root / "release").touch()  # the orphaned install.sh ends; apply waits for it
     done = lpam("apply", "--yes")
     assert done.returncode == 0, done.stderr
     app = lpam.status()["app"]
@@ -341,9 +360,10 @@ def test_a_rollback_cut_off_by_a_kill_is_finished_by_the_next_apply(
 def _rollback_reinstalling_v1(lpam: Lpam, builder: RepoBuilder,
                               git_daemon: GitDaemon) -> tuple[str, subprocess.Popen[str]]:
     """alpha v1 (whose install is slow) applied, then v2; `lpam rollback` spawned and
-    caught while it reinstalls v1. Returns v1's generation and the rollback's process."""
+    caught while it reinstalls v1, whose install.sh runs until `$LPAM_ROOT/release` is
+    created. Returns v1's generation and the rollback's process."""
     builder.write("libpanda-apps.yaml", "apps:\n  - name: alpha\n")
-    add_app(builder, "alpha", extra={"install": 'touch "$LPAM_ROOT/v1-installing"; sleep 1.5'})
+    add_app(builder, "alpha", extra={"install": held_install("v1-installing")})
     builder.commit("alpha v1: installs slowly")
     builder.push()
     lpam.desired(desired(git_daemon.url(builder.bare.name), "alpha"))
@@ -355,6 +375,7 @@ def _rollback_reinstalling_v1(lpam: Lpam, builder: RepoBuilder,
     assert lpam("apply", "--yes").returncode == 0
     marker = lpam.root / "v1-installing"
     marker.unlink()
+    (lpam.root / "hold").touch()  # v1's install.sh runs until the test releases it
     proc = lpam.spawn("rollback", "--yes")
     deadline = time.monotonic() + 60
     while not marker.exists() and time.monotonic() < deadline:

@@ -31,8 +31,9 @@ from pathlib import Path
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam
 from tests.integration.test_fault_truth import BUS, CATALOG, apps_running, bus_holders
+from tests.lengths import knob
 
-ROUNDS = int(os.environ.get("LPAM_FAULT_ROUNDS", "6"))
+ROUNDS = knob("LPAM_FAULT_ROUNDS", 6, 200)  # LPAM_LONG=1: 200 (tests/lengths.py)
 SEED = int(os.environ.get("LPAM_FAULT_SEED", "17"))
 CHANGES = ("switch", "params", "commit", "failing", "rollback", "stop", "start")
 FAULTS = ("SIGKILL", "SIGINT", "SIGTERM", "kill -9 supervisord")

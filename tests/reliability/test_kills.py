@@ -26,8 +26,9 @@ import pytest
 
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, desired
+from tests.lengths import knob
 
-INSTANTS = int(os.environ.get("LPAM_CRASH_INSTANTS", "6"))
+INSTANTS = knob("LPAM_CRASH_INSTANTS", 6, 240)  # LPAM_LONG=1: 240 (tests/lengths.py)
 
 START = """\
 sleep "0.$((RANDOM % 4))"

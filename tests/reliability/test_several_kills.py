@@ -24,10 +24,11 @@ from pathlib import Path
 
 from tests.integration.apps import Lpam
 from tests.integration.several import car_url, collisions, lpam, running, several
+from tests.lengths import knob
 
 __all__ = ["car_url", "lpam"]  # fixtures
 
-ROUNDS = int(os.environ.get("LPAM_SEVERAL_ROUNDS", "4"))
+ROUNDS = knob("LPAM_SEVERAL_ROUNDS", 4, 120)  # LPAM_LONG=1: 120 (tests/lengths.py)
 
 
 class Owners(threading.Thread):

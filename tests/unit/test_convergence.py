@@ -19,7 +19,6 @@ desired app, a script failing once and lpam dying before, during or after any sc
 from __future__ import annotations
 
 import json
-import os
 import tempfile
 from collections.abc import Callable
 from datetime import datetime, timezone
@@ -42,6 +41,7 @@ from reconciler.engine.observe.machine import observe
 from reconciler.engine.records import generations
 from reconciler.engine.records.state import read_record, write_record
 from schemas.record import AppRecord, RepositoryRecord, StateRecord, Stray
+from tests.lengths import knob
 from tests.records import sole
 
 URL, KEY = "git://h/apps", "lab/apps"
@@ -55,7 +55,7 @@ UNIT_OPS = {"install": "install.sh", "uninstall": "uninstall.sh", "start": "star
 SCRIPTS = ("install.sh", "uninstall.sh", "start.sh", "stop.sh")
 STATUSES = ("installing", "installed", "starting", "running", "stopping", "uninstalling")
 NOW = datetime(2026, 11, 22, tzinfo=timezone.utc)
-EXAMPLES = int(os.environ.get("LPAM_PROPERTY_EXAMPLES", "150"))  # more: docs/reliability.md
+EXAMPLES = knob("LPAM_PROPERTY_EXAMPLES", 150, 3000)  # LPAM_LONG=1: docs/reliability.md
 
 
 def remote() -> dict[str, dict[str, dict[str, tuple[str, dict[str, str]]]]]:

@@ -6,7 +6,7 @@ from datetime import datetime, timezone
 
 import networkx as nx
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from reconciler.base.errors import PlanError, StalePlanError
@@ -170,6 +170,7 @@ def test_prepare_steps_precede_cutover_whatever_the_input_order() -> None:
     assert [s.id for s in order(steps)] == ["checkout:r2", "start:x", "remove:r"]
 
 
+@settings(deadline=None)  # no time limit per example: a busy machine (a parallel run) is slow
 @given(st.lists(st.sampled_from(list(Phase)), max_size=12))
 def test_steps_without_needs_are_ordered_as_the_graph_orders_them(phases: list[Phase]) -> None:
     """`order` skips networkx when no step has `needs`; it must put them where the graph of

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from reconciler.adapters.memory import MemoryStore
@@ -165,6 +165,7 @@ def test_an_app_is_not_its_own_rival() -> None:
 RESOURCES = st.sampled_from(["panda", "gps-serial", "service:can", "service:gps", "lidar"])
 
 
+@settings(deadline=None)  # no time limit per example: a busy machine (a parallel run) is slow
 @given(st.dictionaries(st.sampled_from(["a", "b", "c", "d", "e"]),
                        st.frozensets(RESOURCES, max_size=3), max_size=5))
 def test_conflicts_are_exactly_the_resources_with_two_claimants(

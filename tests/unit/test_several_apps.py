@@ -16,7 +16,6 @@ tests/unit/test_convergence.py.
 
 from __future__ import annotations
 
-import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,13 +44,14 @@ from reconciler.engine.records import generations
 from reconciler.engine.records.state import read_record, write_record
 from schemas.plan import Plan
 from schemas.record import AppRecord, RepositoryRecord, StateRecord, history_sets
+from tests.lengths import knob
 from tests.unit.test_convergence import C1, C2, KEY, NOW, SCRIPTS, STATUSES, URL
 
 CLAIMS = {"c1": {"panda"}, "c2": {"panda"}, "g1": {"gps"}, "g2": {"gps"}, "r": set()}
 SLOTS = (("c1", "c2"), ("g1", "g2"), ("r",))  # a valid set takes at most one of each
 TREES = {(a, c): f"{i:x}" * 40 for i, (a, c) in enumerate(
     ((a, c) for a in CLAIMS for c in (C1, C2)), start=1)}
-EXAMPLES = int(os.environ.get("LPAM_PROPERTY_EXAMPLES", "150"))  # more: docs/reliability.md
+EXAMPLES = knob("LPAM_PROPERTY_EXAMPLES", 150, 1000)  # LPAM_LONG=1: docs/reliability.md
 
 Entry = tuple[str, str, tuple[tuple[str, str], ...]]  # app, commit, params
 
