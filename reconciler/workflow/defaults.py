@@ -1,5 +1,5 @@
 """The defaults every caller of the use cases shares (the CLI's flags, the agent, the
-Bluetooth service later), written once so a caller that omits an option gets what
+Bluetooth service, the shim), written once so a caller that omits an option gets what
 `lpam` would have done."""
 
 from __future__ import annotations

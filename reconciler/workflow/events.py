@@ -1,5 +1,6 @@
 """What a use case tells its caller while it works, as values: the CLI prints them, the
-agent logs them, a benchmark times them, the Bluetooth service will notify them.
+agent logs them, a benchmark times them, the Bluetooth service and the shim answer with
+them.
 
 A use case never prints. Each event is small and frozen; `Report` is where they go.
 """

@@ -7,12 +7,13 @@ from __future__ import annotations
 import getpass
 from pathlib import Path
 
+from reconciler.base.layout import KEEP_GENERATIONS
 from reconciler.core.planning.model import GenerationKey
 from reconciler.engine.execution.context import Context
 from schemas.record import history_sets
 
 
-def prune(ctx: Context, *, keep: int = 3) -> None:
+def prune(ctx: Context, *, keep: int = KEEP_GENERATIONS) -> None:
     """After a successful apply, generations still installed are kept (the app's and any
     stray's: their scripts are what stops them), and the last `keep` good ones of the
     history (what `lpam rollback` returns to: a set of apps);

@@ -2,10 +2,11 @@
 
 A failed step stops the apply at once with a message that says where the vehicle stands.
 A failure while preparing left the running app untouched. A failure in the cutover rolls
-back (engine/execution/recovery.py): the steps back to the good app that ran before are planned
-by the same rules as any plan (core/planning/lifecycle.py: whatever the new app may have
-started is stopped before it is uninstalled; an old app whose uninstall.sh failed is
-installed again rather than uninstalled twice) and journalled like any step, so the car
+back (engine/execution/recovery.py): the steps back to the good apps that ran before are
+planned by the same rules as any plan (core/planning/modes.py `steps_back`: whatever the
+new app may have started is stopped before it is uninstalled; an old app whose
+uninstall.sh failed is installed again rather than uninstalled twice) and journalled like
+any step, so the car
 is never left with two apps nor, when the old one can run, with none. With no previous
 app, the half-installed new one is removed. A power cut or a kill, by contrast, is
 resumed forward: the next apply re-plans from the state record and continues where this
