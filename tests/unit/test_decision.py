@@ -111,3 +111,20 @@ def test_new_parameters_for_an_app_whose_install_was_cut_off_say_it_runs_again()
     said = decision.change().reason
     assert "no install script runs" not in said
     assert "install script" in said and "runs again" in said
+
+
+def test_an_app_that_leaves_names_what_it_shares_with_each_heir() -> None:
+    """A field trial's switch said pandarecord is uninstalled before joystick2toyota, "which
+    claims what it claims (panda, service:pandarecord)": only the panda is shared."""
+    old = installed("running", held=False, good=True, params={}).model_copy(
+        update={"resources": ["panda", "service:pandarecord"]})
+    heir = AppTarget(name="joystick2toyota", repository="o/apps", commit="a" * 40,
+                     path="j", tree=TREE, resources=frozenset({"panda", "service:simplesend"}))
+    said = decide(old, None, frozenset(), heirs=[heir]).change().reason
+    assert said.endswith("before joystick2toyota, which claims what it claims (panda), is "
+                         "installed")
+    other = AppTarget(name="tracker", repository="o/apps", commit="a" * 40, path="t",
+                      tree=TREE, resources=frozenset({"service:pandarecord"}))
+    said = decide(old, None, frozenset(), heirs=[heir, other]).change().reason
+    assert "before joystick2toyota, tracker, which claim what it claims (panda, " \
+        "service:pandarecord), are installed" in said

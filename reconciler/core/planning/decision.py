@@ -27,6 +27,7 @@ window after whatever finishes it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar, Union
 
@@ -80,7 +81,8 @@ class Adopt:
 
 @dataclass(frozen=True)
 class Remove:
-    """An installed app no longer desired; `heirs`: arriving apps that claim what it claims."""
+    """An installed app no longer desired; `heirs`: arriving apps that claim something it
+    claims (`claims`: what they share)."""
 
     action: ClassVar[Action] = Action.DELETE
     app: str
@@ -90,8 +92,10 @@ class Remove:
     def said(self) -> str:
         text = f"app {self.app} is no longer desired: stopped and uninstalled"
         if self.heirs:
-            text += (f" before {', '.join(self.heirs)}, which claims what it claims "
-                     f"({', '.join(self.claims)}), is installed")
+            one = len(self.heirs) == 1
+            text += (f" before {', '.join(self.heirs)}, which {'claims' if one else 'claim'} "
+                     f"what it claims ({', '.join(self.claims)}), "
+                     f"{'is' if one else 'are'} installed")
         return text
 
 
@@ -335,7 +339,7 @@ class Decision:
 def decide(old: AppRecord | None, new: AppTarget | None,
            generations: frozenset[GenerationKey], live: UnitState | None = None, *,
            start: bool = True, verify: bool = True, adopted: Stray | None = None,
-           heirs: tuple[str, ...] = ()) -> Decision:
+           heirs: Sequence[AppTarget] = ()) -> Decision:
     """The decision for one app: `old` the installed app of its name as recorded, `live`
     its unit now, `new` the app wanted. Started if `start` (its health checked if
     `verify`); `adopted`: the app LPAM installed that `new` is, as it is; `heirs`: the
@@ -353,15 +357,15 @@ def decide(old: AppRecord | None, new: AppTarget | None,
 def _chosen(old: AppRecord | None, new: AppTarget | None,
             generations: frozenset[GenerationKey], live: UnitState | None, *, start: bool,
             verify: bool, adopted: Stray | None,
-            heirs: tuple[str, ...]) -> tuple[Reason, list[Step]]:
+            heirs: Sequence[AppTarget]) -> tuple[Reason, list[Step]]:
     # what runs is what the service manager says (Terraform's refresh): an app recorded
     # as installed whose unit is active is stopped before it is uninstalled
     seen = None if old is None else refreshed_app(old, live)
     if new is None:
         assert old is not None and seen is not None, "an app is installed, desired, or both"
-        claims = tuple(sorted(old.claims)) if heirs else ()
-        return Remove(old.name, heirs, claims), _replaced(seen, None, generations, start=start,
-                                                          verify=verify)
+        shared = tuple(sorted(old.claims & frozenset().union(*(h.resources for h in heirs))))
+        reason = Remove(old.name, tuple(h.name for h in heirs), shared)
+        return reason, _replaced(seen, None, generations, start=start, verify=verify)
     if old is None or seen is None:
         if adopted is not None:
             return (Adopt(new.name, adopted.name, new.repository, new.commit),

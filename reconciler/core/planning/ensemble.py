@@ -68,7 +68,7 @@ def plan_set(record: StateRecord, wanted: Sequence[AppTarget],
     for old, new in pairs(record, wanted):
         keep = start and not (new is not None and new.name in stopped)
         heirs = () if old is None or new is not None else tuple(
-            a.name for a in wanted if a.resources & old.claims)
+            a for a in wanted if a.resources & old.claims)
         decision = decide(old, new, generations, None if old is None else lives.get(old.name),
                           start=keep, verify=verify,
                           adopted=taken.get(new.name) if new is not None else None,
