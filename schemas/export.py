@@ -26,6 +26,7 @@ from schemas.generation import GenerationMeta
 from schemas.override import LocalOverride
 from schemas.plan import Plan
 from schemas.record import StateRecord
+from schemas.report import StatusReport
 
 DOCUMENTS: dict[str, type[BaseModel]] = {
     "desired-state.v2.schema.json": DesiredState,
@@ -37,6 +38,7 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "agent-status.v2.schema.json": AgentStatus,
     "car-status.v2.schema.json": CarStatus,
     "override.v1.schema.json": LocalOverride,
+    "status-report.v1.schema.json": StatusReport,
 }
 FOLDER = Path(__file__).resolve().parent / "json"
 FROZEN: dict[str, str] = {

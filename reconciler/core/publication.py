@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -77,23 +77,18 @@ CONVERGED = frozenset({"applied", "nothing to do"})
 VOLATILE_REASONS = frozenset({"deferred"})
 """Results whose reason changes from pass to pass (gate readings) and so does not count."""
 
-APP_FIELDS = ("name", "generation", "status", "running")
-"""What the fleet sees of the installed app (from `lpam status --json`)."""
-
-
-def _several(apps: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]] | None:
+def _several(apps: Sequence[PublishedApp]) -> list[dict[str, Any]] | None:
     """What the fleet sees of every installed app, or None with one app or none (then
     `app` says it all, as before several apps)."""
     if len(apps) <= 1:
         return None
-    return [{key: a.get(key) for key in APP_FIELDS} for a in apps]
+    return [a.model_dump(mode="json") for a in apps]
 
 
-def essentials(status: AgentStatus, app: Mapping[str, Any] | None,
-               override: LocalOverride | None = None,
-               apps: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
-    """What of this status counts as a change: see the module docstring. `app` is the
-    first installed app, `apps` every one (as `lpam status --json` lists them)."""
+def essentials(status: AgentStatus, apps: Sequence[PublishedApp],
+               override: LocalOverride | None = None) -> dict[str, Any]:
+    """What of this status counts as a change: see the module docstring. `apps`: every
+    installed app, in the order they were installed (the first is `app`)."""
     last = status.last_attempt
     attempt = None
     if last is not None:
@@ -106,7 +101,7 @@ def essentials(status: AgentStatus, app: Mapping[str, Any] | None,
         "desired_revision": status.desired_revision,
         "applied_revision": status.applied_revision,
         "last_attempt": attempt,
-        "app": None if app is None else {key: app.get(key) for key in APP_FIELDS},
+        "app": apps[0].model_dump(mode="json") if apps else None,
         "override": None if override is None else {"since": override.since, "by": override.by,
                                                    "edits": override.edits},
     }
@@ -116,11 +111,10 @@ def essentials(status: AgentStatus, app: Mapping[str, Any] | None,
     return found
 
 
-def fingerprint(status: AgentStatus, app: Mapping[str, Any] | None,
-                override: LocalOverride | None = None,
-                apps: Sequence[Mapping[str, Any]] = ()) -> str:
+def fingerprint(status: AgentStatus, apps: Sequence[PublishedApp],
+                override: LocalOverride | None = None) -> str:
     """A digest of the essentials: equal exactly when nothing that counts changed."""
-    text = json.dumps(essentials(status, app, override, apps), sort_keys=True,
+    text = json.dumps(essentials(status, apps, override), sort_keys=True,
                       separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
@@ -153,15 +147,14 @@ def keeps_parent(length: int, bound: int = HISTORY) -> bool:
     return 0 < length < bound
 
 
-def status_file(status: AgentStatus, app: Mapping[str, Any] | None,
-                override: LocalOverride | None = None,
-                apps: Sequence[Mapping[str, Any]] = ()) -> bytes:
+def status_file(status: AgentStatus, apps: Sequence[PublishedApp],
+                override: LocalOverride | None = None) -> bytes:
     """The file a car publishes: its agent's status, what the fleet sees of its app (the
     first installed) and, when several are installed, of every app, and a local override
     in force. A car with one app or none writes no `apps`: its file is what it was."""
-    shown = None if app is None else PublishedApp(**{key: app.get(key) for key in APP_FIELDS})
-    several = [PublishedApp(**a) for a in _several(apps) or []]
-    document = CarStatus(agent=status, app=shown, override=override, apps=several)
+    several = list(apps) if len(apps) > 1 else []
+    document = CarStatus(agent=status, app=apps[0] if apps else None, override=override,
+                         apps=several)
     body = document.model_dump(mode="json", exclude=set() if several else {"apps"})
     return (json.dumps(body, indent=2, sort_keys=True) + "\n").encode("utf-8")
 

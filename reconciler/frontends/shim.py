@@ -36,13 +36,14 @@ if TYPE_CHECKING:
     from reconciler.base.layout import Layout
     from reconciler.workflow.applying import ApplyOptions
     from reconciler.workflow.events import Report
-    from reconciler.workflow.inventory import AppRow
     from reconciler.workflow.machine import Machine
+    from schemas.report import CatalogRow, StatusReport
 
 PROG = "libpanda-app-manager"
 FLAGS = "htkdscupl"
 VALUED = "igbr"
 EXIT_OK, EXIT_USAGE = 0, 2
+NO_APP_STATE = "inactive (none installed)"  # LPAM's `-t` without an app
 HEADER = ("Repository", "Branch", "App", "Service", "Enabled", "Running", "Description")
 USAGE = f"""\
 usage: {PROG} [-d] [-l] [-c] [-t] [-i APP | -u] [-g OWNER/REPO [-b BRANCH]]
@@ -138,15 +139,32 @@ def _command(pairs: list[tuple[str, str | None]]) -> Command:
     return command
 
 
-def table(rows: Sequence[AppRow]) -> str:
+def table(rows: Sequence[CatalogRow]) -> str:
     """LPAM's `-d` output: the header, then one line per app; every line ends in \\n."""
     lines = ["\t".join(HEADER)]
     for row in rows:
         yes = {True: "yes", False: "no"}
-        cells = [row.repository, row.branch, row.app, row.service, yes[row.enabled],
+        cells = [row.repository, row.ref, row.app, row.named_service, yes[row.installed],
                  yes[row.running], f'"{row.description}"']
         lines.append("\t".join(bluezone_safe(cell) for cell in cells))
     return "".join(line + "\n" for line in lines)
+
+
+def lpam_text(flag: str, shown: StatusReport) -> str:
+    """LPAM's answer to a reading flag, rendered from the status report: `-d` the table,
+    `-l` the app names, `-c` the installed apps (LPAM's `current:`, which named one), `-t`
+    each installed app's unit as its manager sees it (LPAM's, which had one app)."""
+    if flag == "d":
+        return table(shown.listed())
+    if flag == "l":
+        return " ".join(dict.fromkeys(r.app for r in shown.listed())) + "\n"
+    if flag == "c":
+        return ("\n".join(a.name for a in shown.installed) or "None") + "\n"
+    if not shown.installed:
+        return NO_APP_STATE + "\n"
+    return "".join((a.unit.said if a.unit is not None else
+                    f"{a.name} names no service: lpam records it {a.status}") + "\n"
+                   for a in shown.installed)
 
 
 def bluezone_safe(text: str) -> str:
@@ -180,15 +198,8 @@ def run(machine: Machine, command: Command) -> None:
 def _act(machine: Machine, flag: str, value: str | None) -> None:
     from reconciler.workflow import editing, inventory
 
-    if flag == "d":
-        sys.stdout.write(table(inventory.app_table(machine)))
-    elif flag == "l":
-        names = dict.fromkeys(r.app for r in inventory.app_table(machine))
-        print(" ".join(names))
-    elif flag == "c":
-        print("\n".join(inventory.current_apps(machine)) or "None")
-    elif flag == "t":
-        print(inventory.service_state(machine))
+    if flag in "dlct":
+        print(lpam_text(flag, inventory.report(machine)), end="")
     elif flag in "iu":
         done = editing.enable_app(machine, value, by=PROG, options=_options(),
                                   report=_report())

@@ -224,19 +224,17 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     (a read-only mirror, a token without write access) costs a note, nothing more: the car
     keeps working and its status stays local."""
     from reconciler.base.atomic import write_atomic
-    from reconciler.core.publication import APP_FIELDS, due, fingerprint, status_file
+    from reconciler.core.publication import due, fingerprint, status_file
     from reconciler.report import status as machine_status
 
     own = read_status(machine)
     if own.vehicle is None:
         return
-    seen = machine_status.as_json(machine.layout, state=machine.services.state)
-    app = seen["app"]
-    shown = None if app is None else {k: app[k] for k in APP_FIELDS}
-    every = [{k: a[k] for k in APP_FIELDS} for a in seen["installed"]]  # several apps
+    seen = machine_status.report(machine.layout, state=machine.services.state)
+    every = [a.published() for a in seen.installed]
     now = machine.clock()
     local = read_override(machine.layout)
-    mark = fingerprint(own, shown, local, every)
+    mark = fingerprint(own, every, local)
     why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
     if why is None:
         return
@@ -244,7 +242,7 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     result: Published = "pushed"
     reason = None
     try:
-        _push(machine, config, branch, status_file(own, shown, local, every),
+        _push(machine, config, branch, status_file(own, every, local),
               when=int(now.timestamp()), report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:

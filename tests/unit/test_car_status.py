@@ -18,7 +18,7 @@ from reconciler.base.errors import ConfigError, VersionError
 from reconciler.base.loading import load
 from reconciler.core.publication import fingerprint, read_status_file, status_file
 from schemas.agent import AgentStatus, Attempt
-from schemas.fleet import CarStatus
+from schemas.fleet import CarStatus, PublishedApp
 from schemas.override import LocalOverride
 
 FIXTURES = Path(migrations.__file__).parent / "fixtures" / "car-status" / "v0_to_v1"
@@ -26,12 +26,11 @@ WHERE = Path("status/rav4-07/status.json")
 STATUS = AgentStatus(vehicle="rav4-07", follows="desired-state.yaml", applied_revision="c" * 40,
                      last_attempt=Attempt(time="2026-11-20T10:00:00+00:00", revision="c" * 40,
                                           result="applied"))
-APP = {"name": "alpha", "generation": "0123456789ab", "status": "installed", "running": True,
-       "commit": "not published"}
+APP = PublishedApp(name="alpha", generation="0123456789ab", status="installed", running=True)
 
 
 def test_what_a_car_publishes_reads_back() -> None:
-    content = status_file(STATUS, APP)
+    content = status_file(STATUS, [APP])
     body = json.loads(content)
     assert body["version"] == 2 and set(body["app"]) == {"name", "generation", "status",
                                                           "running"}
@@ -39,19 +38,19 @@ def test_what_a_car_publishes_reads_back() -> None:
     read = read_status_file(content, where=WHERE)
     assert read is not None and read.agent == STATUS and read.app is not None
     assert (read.app.name, read.app.running) == ("alpha", True)
-    assert read_status_file(status_file(STATUS, None), where=WHERE) == CarStatus(agent=STATUS)
+    assert read_status_file(status_file(STATUS, []), where=WHERE) == CarStatus(agent=STATUS)
 
 
 def test_a_local_override_is_published_and_read_back() -> None:
     local = LocalOverride(since="2026-11-25T09:00:00+00:00", by="phone", edits=2,
                           revision="c" * 40, seeded=True)
-    read = read_status_file(status_file(STATUS, APP, local), where=WHERE)
+    read = read_status_file(status_file(STATUS, [APP], local), where=WHERE)
     assert read is not None and read.override == local
-    assert fingerprint(STATUS, APP, local) != fingerprint(STATUS, APP)  # a change is news
+    assert fingerprint(STATUS, [APP], local) != fingerprint(STATUS, [APP])  # a change is news
 
 
 def test_a_version_1_file_has_no_override() -> None:
-    body = json.loads(status_file(STATUS, APP))
+    body = json.loads(status_file(STATUS, [APP]))
     body["version"] = 1
     del body["override"]
     read = read_status_file(json.dumps(body).encode(), where=WHERE)
@@ -61,7 +60,7 @@ def test_a_version_1_file_has_no_override() -> None:
 def test_a_file_from_before_the_version_is_read() -> None:
     old = {"agent": {**STATUS.model_dump(mode="json"), "version": 1, "follows": None,
                      "publication": None},
-           "app": {k: APP[k] for k in ("name", "generation", "status", "running")}}
+           "app": APP.model_dump()}
     del old["agent"]["follows"], old["agent"]["publication"]
     read = read_status_file(json.dumps(old).encode(), where=WHERE)
     assert read is not None and read.agent.applied_revision == "c" * 40
@@ -110,8 +109,8 @@ def test_fleet_status_shows_each_cars_file_as_read_here(monkeypatch: pytest.Monk
 
     newer = json.dumps({"version": 9, "agent": {}}).encode()
     files = [clone.Published("rav4-01", b"no json", 1_700_000_000),
-             clone.Published("rav4-01", status_file(STATUS, APP), 1_700_000_000),
-             clone.Published("rav4-07", status_file(STATUS, None), 1_700_000_100),
+             clone.Published("rav4-01", status_file(STATUS, [APP]), 1_700_000_000),
+             clone.Published("rav4-07", status_file(STATUS, []), 1_700_000_100),
              clone.Published("rav4-07", newer, 1_700_000_200),
              clone.Published("rav4-09", newer, 1_700_000_300)]
     monkeypatch.setattr(clone, "published", lambda *a, **k: ("c" * 40, files))

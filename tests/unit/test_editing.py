@@ -20,8 +20,8 @@ from reconciler.frontends.shim import Command, UsageError, bluezone_safe, parse,
 from reconciler.workflow import editing
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.events import Event, Planned
-from reconciler.workflow.inventory import AppRow
 from reconciler.workflow.machine import Machine
+from tests.records import lpam_row
 
 TEXT = """\
 # the car's desired state: keep this comment
@@ -167,8 +167,8 @@ def test_cells_survive_bluezones_decoding(text: str) -> None:
 
 
 def test_a_tab_or_newline_in_a_value_cannot_split_bluezones_columns() -> None:
-    row = AppRow(repository="o/r", branch="main", app="a", service="", enabled=True,
-                 running=False, description="one\ttwo\nthree")
+    row = lpam_row(repository="o/r", branch="main", app="a", service="", enabled=True,
+                   running=False, description="one\ttwo\nthree")
     out = table([row])
     lines = bluezone(out).split("\n")[1:-1]
     assert lines == ['o/r\tmain\ta\t\tyes\tno\t"one two three"']

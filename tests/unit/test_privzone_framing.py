@@ -34,11 +34,11 @@ from reconciler.core.privzone.messages import (
     AddRepository,
     AppEnable,
     AppParams,
-    AppRow,
     RemoveRepository,
     app_info_message,
     parse_input,
 )
+from tests.records import lpam_row
 
 PHONE = Path(__file__).with_name("privzone_phone.js")
 NODE = shutil.which("node")
@@ -189,7 +189,7 @@ def test_the_phone_reads_exactly_the_contents_lpam_sends(ascii_only: bool, limit
 
 @needs_node
 def test_the_phone_shows_the_app_list_lpam_sends() -> None:
-    rows = [AppRow(f"o/r{i}", "main", f"app{i}", "can", i == 0, i == 1, f"{CJK} {EMOJI} " * i)
+    rows = [lpam_row(f"o/r{i}", "main", f"app{i}", "can", i == 0, i == 1, f"{CJK} {EMOJI} " * i)
             for i in range(12)]
     (got,) = phone_receives(app_info_message(rows))
     assert got["type"] == "app_info"

@@ -15,7 +15,6 @@ from reconciler.core.privzone.messages import (
     AddRepository,
     AppEnable,
     AppParams,
-    AppRow,
     AppUpdate,
     Command,
     Failure,
@@ -35,6 +34,7 @@ from reconciler.core.privzone.messages import (
 )
 from schemas.desired import PARAM_VALUE_LIMIT
 from schemas.operator import OperatorAction
+from tests.records import lpam_row
 
 EMOJI = "\U0001f697"
 
@@ -273,9 +273,9 @@ def received(notifications: list[bytes]) -> tuple[Any, str]:
 
 
 def test_the_app_list_has_bluezones_keys_order_and_yes_no() -> None:
-    rows = [AppRow("jmscslgroup/libpanda-default-apps", "main", "pandarecord", "pandarecord",
+    rows = [lpam_row("jmscslgroup/libpanda-default-apps", "main", "pandarecord", "pandarecord",
                    True, False, 'GPS/CAN "data" recording'),
-            AppRow("o/r", "dev", "gps2vsl", "can", False, True, f"車 {EMOJI}")]
+            lpam_row("o/r", "dev", "gps2vsl", "can", False, True, f"車 {EMOJI}")]
     contents, kind = received(app_info_message(rows))
     assert kind == "app_info"
     assert contents == [

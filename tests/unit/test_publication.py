@@ -11,11 +11,13 @@ import pytest
 
 from reconciler.core.publication import HISTORY, due, fingerprint, keeps_parent
 from schemas.agent import AgentStatus, Attempt, Publication, Result
+from schemas.fleet import PublishedApp
 
 REV, NEW = "a" * 40, "b" * 40
 T0 = datetime(2026, 11, 20, 10, 0, tzinfo=timezone.utc)
-APP: dict[str, Any] = {"name": "alpha", "generation": "aaaa-1", "status": "running",
-                       "running": True}
+ALPHA: dict[str, Any] = {"name": "alpha", "generation": "aaaa-1", "status": "running",
+                         "running": True}
+APP = [PublishedApp(**ALPHA)]
 HOURS = 3600.0
 
 
@@ -51,12 +53,12 @@ def test_the_last_publication_does_not_count() -> None:
     ({"desired_revision": NEW}, APP),
     ({"follows": "vehicles/rav4-07.yaml"}, APP),
     ({"vehicle": "rav4-01"}, APP),
-    ({}, {**APP, "running": False}),
-    ({}, {**APP, "generation": "bbbb-2"}),
-    ({}, {**APP, "status": "installed"}),
-    ({}, None),
+    ({}, [PublishedApp(**{**ALPHA, "running": False})]),
+    ({}, [PublishedApp(**{**ALPHA, "generation": "bbbb-2"})]),
+    ({}, [PublishedApp(**{**ALPHA, "status": "installed"})]),
+    ({}, []),
 ])
-def test_what_the_fleet_sees_counts(change: dict[str, Any], app: dict[str, Any] | None) -> None:
+def test_what_the_fleet_sees_counts(change: dict[str, Any], app: list[PublishedApp]) -> None:
     assert fingerprint(status(**change), app) != fingerprint(status(), APP)
 
 

@@ -14,6 +14,7 @@ from reconciler.base.errors import GitError, StoreDamagedError
 from reconciler.base.layout import Layout
 from reconciler.engine.records.state import write_record
 from reconciler.report import status
+from reconciler.report.table import CELL_LIMIT
 from schemas.record import AppRecord, AppStatus, RepositoryRecord, StateRecord, Stray
 
 OLD, NEW = "a" * 40, "b" * 40
@@ -109,7 +110,7 @@ def test_the_table_never_sends_control_characters_to_the_terminal(layout: Layout
     table = status.as_table(layout, store=hostile)
     assert all(c.isprintable() or c == "\n" for c in table)
     assert max(len(cell) for line in table.splitlines() for cell in line.split()) \
-        <= status.CELL_LIMIT
+        <= CELL_LIMIT
     shown = status.as_json(layout, store=hostile)  # whole, escaped by json.dumps
     assert shown["apps"][0]["service"] == "\x1b]0;owned\x07can\rfake"
 

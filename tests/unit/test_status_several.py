@@ -26,7 +26,12 @@ from reconciler.base.layout import Layout
 from reconciler.base.unit import UnitState
 from reconciler.core.planning.ensemble import operator_steps
 from reconciler.core.planning.model import GenerationKey
-from reconciler.core.publication import fingerprint, read_status_file, status_file
+from reconciler.core.publication import (
+    essentials,
+    fingerprint,
+    read_status_file,
+    status_file,
+)
 from reconciler.engine.records.state import write_record
 from reconciler.frontends.cli import again
 from reconciler.report import status
@@ -35,6 +40,7 @@ from reconciler.workflow.logs import app_logs, new_output
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.operate import chosen_apps
 from schemas.agent import AgentStatus
+from schemas.fleet import PublishedApp
 from schemas.generation import AppGeneration
 from schemas.operator import OperatorAction
 from schemas.plan import Step
@@ -189,16 +195,16 @@ AGENT = AgentStatus(vehicle="rav4-07", follows="desired-state.yaml",
 WHERE = Path("status/rav4-07/status.json")
 
 
-def published(record: StateRecord, stopped: frozenset[str] = frozenset()) -> list[dict[
-        str, object]]:
-    """What sync.publish hands publication: each app as `lpam status --json` lists it."""
-    return [{"name": a.name, "generation": a.generation, "status": a.status,
-             "running": a.name not in stopped} for a in record.apps]
+def published(record: StateRecord, stopped: frozenset[str] = frozenset()
+              ) -> list[PublishedApp]:
+    """What sync.publish hands publication: each app as the status report has it."""
+    return [PublishedApp(name=a.name, generation=a.generation, status=a.status,
+                         running=a.name not in stopped) for a in record.apps]
 
 
 def test_a_car_running_three_apps_publishes_them_and_the_fleet_sees_them() -> None:
     apps = published(car("installed"), frozenset({"recorder"}))
-    content = status_file(AGENT, apps[0], None, apps)
+    content = status_file(AGENT, apps)
     body = json.loads(content)
     assert body["version"] == 2 and body["app"]["name"] == "controller"
     assert [a["name"] for a in body["apps"]] == ["controller", "recorder", "tracker"]
@@ -212,15 +218,15 @@ def test_a_car_running_three_apps_publishes_them_and_the_fleet_sees_them() -> No
     assert "controller, recorder, tracker" in table and "yes, no, yes" in table
     # the recorder starting again is news to the fleet
     again = published(car())
-    assert fingerprint(AGENT, again[0], None, again) != fingerprint(AGENT, apps[0], None, apps)
+    assert fingerprint(AGENT, again) != fingerprint(AGENT, apps)
 
 
 def test_a_car_with_one_app_publishes_the_file_it_published_before() -> None:
     [app] = published(car().model_copy(update={"apps": [installed("controller")]}))
-    assert status_file(AGENT, app, None, [app]) == status_file(AGENT, app)
-    assert fingerprint(AGENT, app, None, [app]) == fingerprint(AGENT, app)
-    assert "apps" not in json.loads(status_file(AGENT, app, None, [app]))
-    read = read_status_file(status_file(AGENT, app), where=WHERE)
+    assert set(json.loads(status_file(AGENT, [app]))) == {"version", "agent", "app",
+                                                            "override"}
+    assert "apps" not in essentials(AGENT, [app])  # so its fingerprint is what it was
+    read = read_status_file(status_file(AGENT, [app]), where=WHERE)
     assert read is not None and [a.name for a in read.installed()] == ["controller"]
 
 

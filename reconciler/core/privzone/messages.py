@@ -30,9 +30,10 @@ from schemas.desired import AppSpec
 from schemas.enums import StrEnum
 from schemas.names import check_app_name, check_owner_repo, check_ref
 from schemas.operator import OperatorAction
+from schemas.report import CatalogRow
 
 __all__ = [
-    "AddRepository", "AppEnable", "AppParams", "AppRow", "AppUpdate", "Command", "Failure",
+    "AddRepository", "AppEnable", "AppParams", "AppUpdate", "Command", "Failure",
     "InputKind", "NotServed", "ProtocolError", "ReadSummary", "RemoveRepository", "Request",
     "Status", "Unit", "app_info_message", "parse_command", "parse_input", "parse_unit",
     "summary_message", "temperature_text", "unit_value",
@@ -367,28 +368,16 @@ APP_INFO_KIND: Final = "app_info"
 SUMMARY_KIND: Final = "app_summary"
 
 
-@dataclass(frozen=True)
-class AppRow:
-    """One row of the app list: an app of a repository, as LPAM's `-d` table had it."""
-
-    repository: str
-    branch: str
-    app: str
-    service: str
-    enabled: bool  # it is the installed app
-    running: bool
-    description: str
-
-
 def _yes(flag: bool) -> str:
     return "yes" if flag else "no"
 
 
-def app_info_message(rows: Sequence[AppRow]) -> list[bytes]:
+def app_info_message(rows: Sequence[CatalogRow]) -> list[bytes]:
     """The notifications of an `app_info` message: bluezone's keys, in its order, every
-    value a string and `yes`/`no` for the flags (the phone shows them as they are)."""
-    contents = [{"repository": row.repository, "branch": row.branch, "app": row.app,
-                 "service": row.service, "enabled": _yes(row.enabled),
+    value a string and `yes`/`no` for the flags (the phone shows them as they are); a
+    row of the status report is an app of a repository, as LPAM's `-d` table had it."""
+    contents = [{"repository": row.repository, "branch": row.ref, "app": row.app,
+                 "service": row.named_service, "enabled": _yes(row.installed),
                  "running": _yes(row.running), "description": row.description}
                 for row in rows]
     return encode_message(APP_INFO_KIND, contents)

@@ -21,6 +21,7 @@ from reconciler.core.privzone import messages as m
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.events import Report
 from reconciler.workflow.machine import Machine
+from schemas.report import StatusReport, Unreadable
 
 PHONE_LOCK_WAIT = 2.0
 """Seconds a phone's request waits for another apply (the agent's, a terminal's)."""
@@ -74,12 +75,9 @@ def command(machine: Machine, given: m.Command, report: Report) -> Answer:
 def app_info(machine: Machine) -> list[bytes]:
     """`A`: every app of every repository, as `libpanda-app-manager -d` lists them: each
     installed app `enabled` (several run side by side: workflow/inventory.py)."""
-    from reconciler.workflow.inventory import app_table
+    from reconciler.workflow.inventory import report
 
-    rows = [m.AppRow(repository=r.repository, branch=r.branch, app=r.app, service=r.service,
-                     enabled=r.enabled, running=r.running, description=r.description)
-            for r in app_table(machine)]
-    return m.app_info_message(rows)
+    return m.app_info_message(report(machine).listed())
 
 
 def request(machine: Machine, given: m.Request, report: Report) -> Answer:
@@ -131,24 +129,31 @@ def summary(machine: Machine) -> dict[str, str]:
     workflow/gates.py). A part that cannot be known says why; the read never fails."""
     from reconciler.report import status
 
-    shown = status.as_json(machine.layout, state=machine.services.state)
-    app, agent, local = shown["app"], shown["agent"] or {}, shown["override"]
-    found = {
-        "app": "None" if app is None else str(app["name"]),
-        "generation": "" if app is None else str(app["generation"]),
-        "status": "" if app is None else str(app["status"]),
-        "running": "yes" if app is not None and app["running"] else "no",
-        "apps": ", ".join(f"{a['name']} {a['status']}" for a in shown["installed"])
-        or "None",
-        "applied_revision": str(agent.get("applied_revision") or ""),
-        "desired_revision": str(agent.get("desired_revision") or ""),
-        "override": "none" if local is None else
-        f"{local.get('by', '?')} since {local.get('since', '?')}",
+    plan, gates = _plan_and_gates(machine)
+    return summary_of(status.report(machine.layout, state=machine.services.state,
+                                    plan=plan, gates=gates))
+
+
+def summary_of(shown: StatusReport) -> dict[str, str]:
+    """The summary, rendered from the status report."""
+    app, agent, local = shown.app, shown.agent, shown.override
+    agent = None if isinstance(agent, Unreadable) else agent
+    return {
+        "app": "None" if app is None else app.name,
+        "generation": "" if app is None else app.generation,
+        "status": "" if app is None else app.status,
+        "running": "yes" if app is not None and app.running else "no",
+        "apps": ", ".join(f"{a.name} {a.status}" for a in shown.installed) or "None",
+        "applied_revision": "" if agent is None else agent.applied_revision or "",
+        "desired_revision": "" if agent is None else agent.desired_revision or "",
+        "override": "none" if local is None else "? since ?"
+        if isinstance(local, Unreadable) else f"{local.by} since {local.since}",
+        "plan": shown.plan or "", "gates": shown.gates or "",
     }
-    return {**found, **_plan_and_gates(machine)}
 
 
-def _plan_and_gates(machine: Machine) -> dict[str, str]:
+def _plan_and_gates(machine: Machine) -> tuple[str, str]:
+    """What an apply would do now, offline, and the update gates now."""
     from reconciler.workflow.events import Event
     from reconciler.workflow.gates import in_force
     from reconciler.workflow.planning import plan
@@ -159,20 +164,20 @@ def _plan_and_gates(machine: Machine) -> dict[str, str]:
     try:
         wanted = in_force(machine, None)
     except LpamError as exc:
-        return {"plan": f"not known: {reason(exc)}", "gates": "not known"}
+        return f"not known: {reason(exc)}", "not known"
     if wanted is None:
-        return {"plan": "no desired state on this car", "gates": "none"}
-    found = {}
+        return "no desired state on this car", "none"
+    said = {}
     try:
         made = plan(machine, wanted.label, wanted.desired, report=quiet, offline=True,
                     lock_timeout=PHONE_LOCK_WAIT, places=wanted.places)
-        found["plan"] = made.summary or "no changes"
+        said["plan"] = made.summary or "no changes"
     except LpamError as exc:
-        found["plan"] = f"not known: {reason(exc)}"
+        said["plan"] = f"not known: {reason(exc)}"
     try:
         gate = machine.gate_for(wanted.desired, wanted.base_dir)
-        found["gates"] = "none" if gate is None else \
+        said["gates"] = "none" if gate is None else \
             "; ".join(g.describe() for g in gate.states())
     except LpamError as exc:
-        found["gates"] = f"not known: {reason(exc)}"
-    return found
+        said["gates"] = f"not known: {reason(exc)}"
+    return said["plan"], said["gates"]

@@ -1,0 +1,150 @@
+"""The status report, built by one pure function from what reconciler/report/gather.py
+read (and, where a face shows them, the plan and the gates): every face renders this value.
+
+Every installed app is in it (a car may run a controller beside a recorder and a tracker,
+issue 22), each with its generation, its claims and its unit now. Whether an app runs is
+asked of its service manager (the live state), not taken from the record: the record says
+what lpam last did, the manager what runs now. Where the manager cannot know the app's
+unit, the record's word is shown, marked unverified.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from schemas.report import (
+    CatalogRow,
+    Checkout,
+    HoldView,
+    InstalledApp,
+    LastApplyView,
+    RepositoryView,
+    StatusReport,
+    StrayView,
+    UnitView,
+)
+
+if TYPE_CHECKING:
+    from reconciler.base.unit import UnitState
+    from reconciler.report.gather import Listing, Seen
+    from schemas.catalog import CatalogApp
+    from schemas.record import AppRecord, LastApply, StateRecord
+
+DAMAGED = "(damaged in the store: the next `lpam apply` fetches it anew)"
+
+
+def build(seen: Seen, *, plan: str | None = None, gates: str | None = None) -> StatusReport:
+    """The car now, as every face tells it."""
+    record = seen.record
+    last = record.last_apply
+    return StatusReport(
+        installed=[_installed(a, seen.lives.get(a.name)) for a in record.apps],
+        service_manager=seen.manager,
+        last_apply=None if last is None else LastApplyView(
+            **last.model_dump(), shown=last_shown(last, alive=seen.alive)),
+        repositories=[RepositoryView(key=r.key, url=r.url, ref=r.ref, commit=r.commit)
+                      for r in record.repositories],
+        checkouts_not_running=[Checkout(key=r.key, commit=r.commit, applied_commit=r.applied)
+                               for r in record.repositories if r.applied != r.commit],
+        holds=holds(record),
+        apps=[row for listing in seen.listings for row in _rows(listing, seen)],
+        strays=[StrayView(name=s.name, generation=s.generation, stopped=s.stopped,
+                          pending=s.pending) for s in record.strays],
+        cutover=record.cutover, serial=record.serial, lineage=record.lineage,
+        agent=seen.agent, override=seen.override, deferred=seen.deferred,
+        plan=plan, gates=gates,
+    )
+
+
+def running(app: AppRecord, live: UnitState | None) -> tuple[bool, bool]:
+    """(runs, verified): the manager's answer when it knows the unit, else the record's."""
+    if live is not None and live.known:
+        return live.running, True
+    return app.running, False
+
+
+def said(app: AppRecord, runs: bool) -> str:
+    """The lifecycle as a person needs it: what lpam did, and what is still owed."""
+    status = app.status
+    if app.held:
+        if runs or status != "installed":
+            return f"{status} (an operator's stop did not finish: the next apply stops it)"
+        return f"{status} (stopped by operator)"
+    if not app.good:
+        return f"{status} (health not proven yet: the next apply checks it)"
+    return status
+
+
+def _installed(app: AppRecord, live: UnitState | None) -> InstalledApp:
+    runs, verified = running(app, live)
+    unit = None if live is None else UnitView(
+        name=live.name, known=live.known, active=live.active, sub=live.sub,
+        restarts=live.restarts, pid=live.pid, supervised=live.supervised,
+        said=live.describe())
+    return InstalledApp(
+        name=app.name, repository=app.repository, commit=app.commit,
+        generation=app.generation, params=app.params, running=runs, verified=verified,
+        status=app.status, said=said(app, runs), held=app.held, good=app.good, unit=unit,
+        command=app.command, launch=app.launch, user=app.user, claims=sorted(app.claims),
+        claims_known=app.resources is not None)
+
+
+def _rows(listing: Listing, seen: Seen) -> list[CatalogRow]:
+    """A repository's rows: one per app, or one note."""
+    if listing.note is not None or listing.damage is not None:
+        note = listing.note if listing.note is not None else DAMAGED
+        return [CatalogRow(repository=listing.repository, ref=listing.ref,
+                           commit=listing.commit, app="-", service="-", installed=False,
+                           running=False, status=None, description=note,
+                           damage=listing.damage)]
+    return [_row(listing, app, seen) for app in listing.apps]
+
+
+def _row(listing: Listing, app: CatalogApp, seen: Seen) -> CatalogRow:
+    mine = seen.record.installed(app.name)
+    if mine is None or mine.repository != listing.repository:
+        return CatalogRow(repository=listing.repository, ref=listing.ref,
+                          commit=listing.commit, app=app.name, service=app.service or "-",
+                          installed=False, running=False, status=None,
+                          description=app.description)
+    runs, verified = running(mine, seen.lives.get(mine.name))
+    return CatalogRow(repository=listing.repository, ref=listing.ref,
+                      commit=mine.commit[:12], app=app.name,
+                      service=mine.service or app.service or "-", installed=True,
+                      running=runs, status=said(mine, runs), description=app.description,
+                      verified=verified)
+
+
+def holds(record: StateRecord) -> list[HoldView]:
+    """Every hold on this car, what it holds against and how it ends."""
+    against = record.desired.source if record.desired is not None else "the desired state"
+    found = []
+    if record.hold is not None:
+        found.append(HoldView(
+            kind="rollback", what=f"`lpam rollback` returned to generation "
+            f"{record.hold.name}, and plans propose nothing else", against=against,
+            ends=f"when the desired state last applied ({against}) changes, or with "
+            "`lpam apply --release`"))
+    start = "`lpam start`" if len(record.apps) <= 1 else "`lpam start {name}`"
+    for app in record.apps:  # an operator's stop holds one app
+        if app.held:
+            found.append(HoldView(
+                kind="operator stop", what=f"{app.name} was stopped by `lpam stop` and "
+                "stays stopped", against=against,
+                ends=f"with {start.format(name=app.name)}, when the desired state last "
+                f"applied ({against}) changes, or with `lpam apply --release`"))
+    return found
+
+
+def last_shown(last: LastApply, *, alive: bool) -> str:
+    """The last apply as it stands: one `in progress` whose process is gone was cut off
+    (a kill, a power cut), and says how to go on."""
+    why = f": {last.reason}" if last.reason else ""
+    if last.result == "in progress":
+        if alive:
+            return f"in progress since {last.time} (pid {last.pid})"
+        return (f"cut off (began {last.time}; lpam was killed or the power failed): "
+                f"`{last.command or 'lpam apply'}` goes on from where it stood")
+    again = f"; `{last.command}` goes on from where it stood" \
+        if last.result == "interrupted" and last.command else ""
+    return f"{last.result} at {last.time}{why}{again}"

@@ -1,0 +1,193 @@
+"""What the status report is built from, read once: the state record, each installed
+app's unit as its manager answers, the catalogs and app files as committed, the agent's
+status, a local override, a deferral, and whether an apply in progress still lives.
+
+All of the report's reading is here, so that reconciler/report/build.py decides from
+values alone. The catalog and the app files (`service`, `description`…) are read from the
+git objects of the recorded commit, never from the working tree: a repository may hold a
+symbolic link (`service -> /etc/shadow`, or an app folder linking to `/etc`), and a
+checkout may be edited, while a blob is exactly what was committed and a link in git is
+never followed. It never loads the graph stack, and reads nothing it does not show.
+
+What a repository holds is shown, so it is not trusted: a file too large is left out
+rather than failing the whole answer. A repository whose copy in the store is damaged
+keeps its listing, saying so, and the others are read as ever: status must answer most
+when something is wrong.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
+
+from reconciler.base.errors import ConfigError, GitError, LpamError, StoreDamagedError
+from reconciler.base.layout import Layout
+from reconciler.core.documents import parse_catalog
+from reconciler.engine.records.state import read_agent_status, read_override, read_record
+from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
+from schemas.report import Deferral, Unreadable
+
+if TYPE_CHECKING:
+    from reconciler.base.unit import UnitState
+    from schemas.agent import AgentStatus
+    from schemas.override import LocalOverride
+    from schemas.record import RepositoryRecord, StateRecord
+
+SHOWN_FILES = ("description.txt", "service")  # the scripts are not shown, so not read
+
+
+class Objects(Protocol):
+    """What status needs of the repository store (adapters.git.GitStore): committed blobs."""
+
+    def has_commit(self, key: str, commit: str) -> bool: ...
+
+    def read_file(self, key: str, commit: str, path: str) -> bytes | None: ...
+
+    def damage(self, key: str) -> str | None: ...
+
+
+@dataclass(frozen=True)
+class Listing:
+    """A repository's apps as committed (each with its descriptive files, read at the
+    commit it is shown from: an installed app's own), or a note about the repository."""
+
+    repository: str
+    ref: str
+    commit: str  # abbreviated, as shown
+    apps: tuple[CatalogApp, ...] = ()
+    note: str | None = None
+    damage: str | None = None  # the store's copy is damaged: what is wrong
+
+
+@dataclass(frozen=True)
+class Seen:
+    """Everything the report says, as read. `alive`: the apply in progress (if any) still
+    has its process and holds the lock."""
+
+    record: StateRecord
+    listings: tuple[Listing, ...] = ()
+    lives: Mapping[str, UnitState] = field(default_factory=dict)
+    manager: str | None = None
+    alive: bool = False
+    agent: AgentStatus | Unreadable | None = None
+    override: LocalOverride | Unreadable | None = None
+    deferred: Deferral | None = None
+
+
+def gather(layout: Layout, *, store: Objects | None = None,
+           state: Callable[[str], UnitState] | None = None, manager: str | None = None,
+           record: StateRecord | None = None) -> Seen:
+    """Read what the report needs, the record once (an apply may rewrite it meanwhile).
+    `state` asks the service manager (`manager`) about a unit; `record` replaces the one
+    on disk (the shim lists the desired state's repositories, not the recorded ones)."""
+    if store is None:
+        from reconciler.adapters.git import GitStore
+
+        store = GitStore(layout)
+    if record is None:
+        record = read_record(layout)
+    lives = {} if state is None else \
+        {a.name: state(a.service) for a in record.apps if a.service is not None}
+    return Seen(record=record, listings=tuple(listings(record, store)), lives=lives,
+                manager=manager, alive=_alive(layout, record), agent=_agent(layout),
+                override=_override(layout), deferred=_deferred(layout))
+
+
+def listings(record: StateRecord, store: Objects) -> list[Listing]:
+    """Every recorded repository's apps at its recorded commit, then each installed app
+    its repository's catalog does not list (an apply that moved the repository was cut
+    off, or the catalog changed): it may be the one that holds the CAN hardware."""
+    found = [_listing(record, repo, store) for repo in record.repositories]
+    shown = {(x.repository, a.name) for x in found for a in x.apps}
+    for app in record.apps:
+        if (app.repository, app.name) in shown:
+            continue
+        repo = record.repository(app.repository)
+        ref = "-" if repo is None else repo.ref or "(default)"
+        described = _described(store, app.repository, app.commit, app.path,
+                                CatalogApp(name=app.name, path=app.path))
+        found.append(Listing(app.repository, ref, app.commit[:12], apps=(described,)))
+    return found
+
+
+def _listing(record: StateRecord, repo: RepositoryRecord, store: Objects) -> Listing:
+    ref, short = repo.ref or "(default)", repo.commit[:12]
+    try:
+        present = store.has_commit(repo.key, repo.commit)
+    except StoreDamagedError as exc:
+        return Listing(repo.key, ref, short, damage=exc.damage)
+    if not present:  # a lost pack or index hides commits without any read failing
+        damage = store.damage(repo.key)
+        note = "(commit missing from the repository store)" if damage is None else None
+        return Listing(repo.key, ref, short, note=note, damage=damage)
+    try:
+        data = store.read_file(repo.key, repo.commit, CATALOG_FILE)
+    except GitError as exc:
+        return Listing(repo.key, ref, short, note=f"(catalog unreadable: {exc.message})")
+    if data is None:
+        return Listing(repo.key, ref, short, note="(no libpanda-apps.yaml)")
+    label = Path(f"{repo.key}@{short}/{CATALOG_FILE}")
+    try:
+        catalog = parse_catalog(label, data.decode("utf-8", "replace"))
+    except ConfigError as exc:
+        return Listing(repo.key, ref, short, note=f"(catalog unreadable: {exc.message})")
+    apps = []
+    for app in catalog.apps:
+        mine = record.installed(app.name)
+        if mine is not None and mine.repository == repo.key:  # its files as installed
+            apps.append(_described(store, repo.key, mine.commit, mine.path, app))
+        else:
+            apps.append(_described(store, repo.key, repo.commit, app.path, app))
+    return Listing(repo.key, ref, short, apps=tuple(apps))
+
+
+def _described(store: Objects, key: str, commit: str, folder: str,
+               app: CatalogApp) -> CatalogApp:
+    """The app with its descriptive files as committed (regular blobs only: links are not
+    read). A file too large to be a description is left out: the rest still shows."""
+    files = {}
+    for name in SHOWN_FILES:
+        try:
+            data = store.read_file(key, commit, f"{folder.rstrip('/')}/{name}")
+        except GitError:
+            continue
+        if data is not None:
+            files[name] = data
+    return with_folder_files(app, files)
+
+
+def _alive(layout: Layout, record: StateRecord) -> bool:
+    """An apply `in progress` whose process is gone was cut off (a kill, a power cut)."""
+    last = record.last_apply
+    if last is None or last.result != "in progress" or last.pid is None:
+        return False
+    from reconciler.base.process import alive
+    from reconciler.engine.execution.lock import holder
+
+    return alive(last.pid) and holder(layout) is not None
+
+
+def _override(layout: Layout) -> LocalOverride | Unreadable | None:
+    """The local override in force (reconciler/workflow/override.py)."""
+    try:
+        return read_override(layout)
+    except LpamError as exc:
+        return Unreadable(error=exc.message)
+
+
+def _agent(layout: Layout) -> AgentStatus | Unreadable | None:
+    """What the agent's passes recorded (status.json); None on a machine with no agent."""
+    try:
+        return read_agent_status(layout)
+    except LpamError as exc:
+        return Unreadable(error=exc.message)
+
+
+def _deferred(layout: Layout) -> Deferral | None:
+    """The last apply, when a closed update gate deferred its cutover (from the journal)."""
+    from reconciler.engine.records.journal import deferral
+
+    found = deferral(layout)
+    return None if found is None else Deferral(time=found[0], reason=found[1])

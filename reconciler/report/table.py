@@ -1,0 +1,132 @@
+"""`lpam status`'s table: the old tool's `-d` columns, a row per app of every recorded
+repository, and under it the lines a person needs (each installed app's unit, the holds
+and how each ends, the last apply, what a cut-off apply owes the car) — rendered from the
+status report alone (schemas/report.py).
+
+A car with one app shows exactly what it showed before several apps; with several, a
+line per installed app. What a repository holds is shown, so it is not trusted: the
+table replaces control characters (a description could otherwise send escape sequences
+to the operator's terminal) and cuts each cell at 80 characters (`--json` has it whole).
+"""
+
+from __future__ import annotations
+
+from reconciler.base.text import columns, printable
+from schemas.report import InstalledApp, StatusReport, UnitView, Unreadable
+
+COLUMNS = ("repository", "ref", "commit", "app", "service", "installed", "running", "status",
+           "description")
+CELL_LIMIT = 80  # a table cell; the JSON output carries the whole value
+
+
+def cell(value: object) -> str:
+    """A value as one printable table cell: no control characters, at most CELL_LIMIT."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if value is None:
+        return "-"
+    text = printable(str(value))
+    return text if len(text) <= CELL_LIMIT else text[: CELL_LIMIT - 3] + "..."
+
+
+def render(report: StatusReport) -> str:
+    lines = [f"Installed without a record: {cell(s.name)} (generation {cell(s.generation)}); "
+             "`lpam apply` stops and uninstalls it before installing any app."
+             for s in report.strays]
+    lines += [f"Repository {cell(r.repository)}: its copy in the store is damaged: "
+              f"{printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
+              "anew." for r in report.apps if r.damage is not None]
+    lines += _footer(report) + _agent(report)
+    if report.deferred is not None:
+        lines.append(f"Cutover deferred at {report.deferred.time} (the update gates): "
+                     f"{printable(report.deferred.reason)}")
+    if not report.apps:
+        return "\n".join(
+            ["No app repositories. Write a desired state and run `lpam apply`.", *lines])
+    cells = [[cell(getattr(r, c)) for c in COLUMNS] for r in report.apps]
+    header = [c.capitalize() for c in COLUMNS]
+    return "\n".join([*columns(header, cells), *lines])
+
+
+def unit_said(unit: UnitView) -> str:
+    return unit.said if unit.known else \
+        f"{unit.said}: running is what the app's scripts reported (unverified)"
+
+
+def _footer(report: StatusReport) -> list[str]:
+    """Each app's unit as its manager sees it (with several apps, each app's generation
+    and claims too), checkouts that are not what runs, the holds, the last apply."""
+    lines = []
+    manager = report.service_manager or "?"
+    if len(report.installed) > 1:
+        lines.append(f"Installed apps: {len(report.installed)}; service manager: {manager}")
+        lines += [printable(_app_line(app)) for app in report.installed]
+    elif report.app is not None and report.app.unit is not None:
+        lines.append(f"Service manager: {manager}; {printable(unit_said(report.app.unit))}")
+    for repo in report.checkouts_not_running:  # moved by an apply that did not succeed
+        runs = "nothing that runs comes from it yet." if repo.applied_commit is None else \
+            f"what runs came from {repo.applied_commit[:12]}."
+        lines.append(printable(f"Repository {repo.key}: checked out at {repo.commit[:12]} "
+                               f"by an apply that did not succeed; {runs}"))
+    lines += [printable(f"Held: {h.what}; it ends {h.ends}.") for h in report.holds]
+    if report.last_apply is not None:
+        lines.append(printable(f"Last apply: {report.last_apply.shown}"))
+    return lines + _cutover(report)
+
+
+def _app_line(app: InstalledApp) -> str:
+    """One installed app: its generation, its lifecycle, what it claims (what no other
+    app may hold) and its unit now."""
+    claims = ", ".join(app.claims) or "nothing exclusive"
+    known = "" if app.claims_known else " (not recorded: taken as the panda's)"
+    unit = "no unit" if app.unit is None else unit_said(app.unit)
+    return (f"  {app.name} (generation {app.generation}): {app.said}; claims {claims}"
+            f"{known}; {unit}")
+
+
+def _cutover(report: StatusReport) -> list[str]:
+    """An apply a fault cut off mid-cutover, and a rollback it had begun: what the next
+    apply owes the car."""
+    cutover = report.cutover
+    if cutover is None:
+        return []
+    back = ", ".join(a.name for a in cutover.previous) or "no app"
+    rollback = cutover.rollback
+    if rollback is not None:
+        failed = ", ".join(a.name for a in rollback.failed) or "the new app"
+        return [printable(
+            f"Rollback cut off: {failed} failed ({rollback.reason}) at {rollback.time}, and "
+            f"the rollback to {back} did not finish: the next `lpam apply` finishes it.")]
+    return [printable(
+        f"Apply cut off mid-cutover (began {cutover.began}): the next `lpam apply` goes on "
+        f"from here, and returns to {back} if the new app fails.")]
+
+
+def _agent(report: StatusReport) -> list[str]:
+    """The agent's line: which revision runs, which is wanted, the last pass; and a local
+    override in force."""
+    agent = report.agent
+    if agent is None:
+        return []
+    if isinstance(agent, Unreadable):
+        return [f"Agent: its status file is unreadable: {printable(agent.error)}"]
+
+    def short(revision: str | None) -> str:
+        return revision[:12] if revision else "none"
+
+    line = (f"Agent ({cell(agent.vehicle)}): applied {short(agent.applied_revision)}, "
+            f"source at {short(agent.desired_revision)}")
+    last = agent.last_attempt
+    if last is not None:
+        why = f": {last.reason}" if last.reason else ""
+        line += f"; last pass: {last.result} at {last.time}{why}"
+    lines = [printable(line)]
+    local = report.override
+    if isinstance(local, Unreadable):
+        lines.append(f"Local override: its file is unreadable: {printable(local.error)}")
+    elif local is not None:
+        lines.append(printable(
+            f"Local override: the desired state was edited on this car ({local.by}, "
+            f"{local.edits} edit(s) since {local.since}); the agent applies it instead of "
+            "the fleet's file until `lpam apply --release` or the phone's update ends it."))
+    return lines

@@ -1,0 +1,174 @@
+"""The status report: what a car is, built once (reconciler/report/build.py) and rendered
+by every face that tells it — `lpam status` (table and `--json`), `libpanda-app-manager
+-d/-c/-t`, the phone's `A` and summary, and the status a car publishes to its fleet.
+
+One value, so that no face re-derives what another already derived, and none reads
+another's output back: the table and the phone cannot disagree about an app if both print
+the same field. Version 1 is what `lpam status --json` prints, plus `version`; the keys it
+printed before the report existed keep their meaning (`app` is the first installed app,
+`installed` every one, `apps` every app of every recorded repository).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from schemas.agent import AgentStatus
+from schemas.fleet import PublishedApp
+from schemas.override import LocalOverride
+from schemas.record import AppStatus, Cutover, LastResult
+
+REPORT_VERSION: Literal[1] = 1
+
+
+class _View(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class UnitView(_View):
+    """An app's unit as its service manager answered (reconciler/base/unit.py UnitState)."""
+
+    name: str
+    known: bool
+    active: str = "unknown"
+    sub: str = ""
+    restarts: int = 0
+    pid: int | None = None
+    supervised: bool = True
+    said: str = Field(description="the unit's state, said")
+
+
+class InstalledApp(_View):
+    """One installed app: what lpam did (the record) and what its manager says now."""
+
+    name: str
+    repository: str
+    commit: str
+    generation: str
+    params: dict[str, str] = Field(default_factory=dict)
+    running: bool = Field(description="its manager says it runs (the record's word when "
+                          "the manager cannot know its unit: then `verified` is false)")
+    verified: bool
+    status: AppStatus = Field(description="the lifecycle as the record has it")
+    said: str = Field(description="the lifecycle as a person needs it: what is still owed")
+    held: bool
+    good: bool
+    unit: UnitView | None = None
+    command: list[str] | None = None
+    launch: str | None = None
+    user: str | None = None
+    claims: list[str] = Field(default_factory=list)
+    claims_known: bool = Field(description="false: recorded before lpam knew claims, "
+                               "taken as the panda's")
+
+    def published(self) -> PublishedApp:
+        """What the fleet sees of it."""
+        return PublishedApp(name=self.name, generation=self.generation, status=self.status,
+                            running=self.running)
+
+
+class CatalogRow(_View):
+    """An app of a recorded repository (or a note about the repository), as LPAM's `-d`
+    table listed them: installed or not."""
+
+    repository: str
+    ref: str
+    commit: str
+    app: str = Field(description="`-`: the row is a note about the repository")
+    service: str
+    installed: bool
+    running: bool
+    status: str | None = Field(description="the installed app's lifecycle, said; None: "
+                               "not installed")
+    description: str
+    verified: bool | None = None
+    damage: str | None = Field(default=None, description="what is wrong with the "
+                               "repository's copy in the store")
+
+    @property
+    def named_service(self) -> str:
+        """The service as LPAM's table showed it: empty when the app names none."""
+        return "" if self.service == "-" else self.service
+
+
+class HoldView(_View):
+    kind: Literal["rollback", "operator stop"]
+    what: str
+    against: str
+    ends: str
+
+
+class RepositoryView(_View):
+    key: str
+    url: str
+    ref: str | None
+    commit: str
+
+
+class Checkout(_View):
+    """A repository an apply that did not succeed moved: not what runs."""
+
+    key: str
+    commit: str
+    applied_commit: str | None
+
+
+class StrayView(_View):
+    name: str
+    generation: str
+    stopped: bool
+    pending: str | None
+
+
+class LastApplyView(_View):
+    time: str
+    result: LastResult
+    reason: str | None = None
+    pid: int | None = None
+    command: str | None = None
+    shown: str = Field(description="the last apply as it stands now, said")
+
+
+class Unreadable(_View):
+    """A file status reads that is damaged: said, never raised (status always answers)."""
+
+    error: str
+
+
+class Deferral(_View):
+    time: str
+    reason: str
+
+
+class StatusReport(_View):
+    """The car now. `plan` and `gates` are filled only where a face shows them (the
+    phone's summary): planning costs a read of every repository."""
+
+    version: Literal[1] = REPORT_VERSION
+    installed: list[InstalledApp] = Field(default_factory=list)
+    service_manager: str | None = None
+    last_apply: LastApplyView | None = None
+    repositories: list[RepositoryView] = Field(default_factory=list)
+    checkouts_not_running: list[Checkout] = Field(default_factory=list)
+    holds: list[HoldView] = Field(default_factory=list)
+    apps: list[CatalogRow] = Field(default_factory=list)
+    strays: list[StrayView] = Field(default_factory=list)
+    cutover: Cutover | None = None
+    serial: int = 0
+    lineage: str | None = None
+    agent: AgentStatus | Unreadable | None = None
+    override: LocalOverride | Unreadable | None = None
+    deferred: Deferral | None = None
+    plan: str | None = None
+    gates: str | None = None
+
+    def listed(self) -> list[CatalogRow]:
+        """The rows that are apps, not notes about a repository (LPAM's `-d`, the phone)."""
+        return [row for row in self.apps if row.app != "-"]
+
+    @property
+    def app(self) -> InstalledApp | None:
+        """The first installed app: what readers from before several apps read."""
+        return self.installed[0] if self.installed else None
