@@ -36,6 +36,10 @@ from reconciler.base.errors import DependencyError
 from tests.catkin import COMPILE_ERROR, MARK_VAR, write_package
 from tests.contract.test_services import alive, wait_for
 
+# The module fixture `built` makes two real catkin builds; under pytest-xdist the file's
+# tests stay on one worker (--dist loadgroup), so they are built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("catkin")
+
 FIRST = "a1" * 4
 SECOND = "b2" * 4
 BROKEN = "c3" * 4
