@@ -91,6 +91,16 @@ def refuse(found: list[Conflict]) -> None:
     )
 
 
+def owners(claims: Iterable[Claim]) -> dict[str, str]:
+    """Resource → the one app that claims it, sorted by resource (the cutover orders each
+    resource's old owner's stop before its new owner's start). Refused like `refuse` when
+    a resource has two claimants: an owner is never a guess."""
+    claims = list(claims)
+    refuse(conflicts(claims))
+    found = {resource: claim.app for claim in claims for resource in claim.resources}
+    return dict(sorted(found.items()))
+
+
 def _named(resource: str) -> str:
     if resource.startswith(SERVICE_PREFIX):
         return f"{resource} (each names the unit {resource[len(SERVICE_PREFIX):]} in its " \

@@ -187,6 +187,10 @@ class Inbox:
         """Drop what `device` had sent of a message (it disconnected)."""
         self._pending.pop(device, None)
 
+    def under_way(self) -> list[str | None]:
+        """The devices with a message under way (or being dropped), least recent first."""
+        return list(self._pending)
+
     def _keep(self, device: str | None, pending: _Pending) -> None:
         self._pending[device] = pending  # (re)inserted last: the most recent writer
         while len(self._pending) > self.devices:
