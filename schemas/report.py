@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from schemas.agent import AgentStatus
 from schemas.fleet import PublishedApp
 from schemas.override import LocalOverride
+from schemas.plan import Change
 from schemas.record import AppStatus, Cutover, LastResult
 
 REPORT_VERSION: Literal[1] = 1
@@ -142,6 +143,15 @@ class Deferral(_View):
     reason: str
 
 
+class PlanView(_View):
+    """What an apply would do now (planned offline): each change and why, or why it is
+    not known."""
+
+    summary: str = Field(description="the plan's summary, `no changes`, or why no plan "
+                         "could be made")
+    changes: list[Change] = Field(default_factory=list)
+
+
 class StatusReport(_View):
     """The car now. `plan` and `gates` are filled only where a face shows them (the
     phone's summary): planning costs a read of every repository."""
@@ -161,8 +171,8 @@ class StatusReport(_View):
     agent: AgentStatus | Unreadable | None = None
     override: LocalOverride | Unreadable | None = None
     deferred: Deferral | None = None
-    plan: str | None = None
-    gates: str | None = None
+    plan: PlanView | None = None
+    gates: str | None = Field(default=None, description="the update gates now, said")
 
     def listed(self) -> list[CatalogRow]:
         """The rows that are apps, not notes about a repository (LPAM's `-d`, the phone)."""

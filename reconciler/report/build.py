@@ -18,6 +18,7 @@ from schemas.report import (
     HoldView,
     InstalledApp,
     LastApplyView,
+    PlanView,
     RepositoryView,
     StatusReport,
     StrayView,
@@ -28,13 +29,16 @@ if TYPE_CHECKING:
     from reconciler.base.unit import UnitState
     from reconciler.report.gather import Listing, Seen
     from schemas.catalog import CatalogApp
+    from schemas.plan import Plan
     from schemas.record import AppRecord, LastApply, StateRecord
 
 DAMAGED = "(damaged in the store: the next `lpam apply` fetches it anew)"
 
 
-def build(seen: Seen, *, plan: str | None = None, gates: str | None = None) -> StatusReport:
-    """The car now, as every face tells it."""
+def build(seen: Seen, *, plan: Plan | str | None = None,
+          gates: str | None = None) -> StatusReport:
+    """The car now, as every face tells it; `plan`: what an apply would do now, or why
+    that is not known."""
     record = seen.record
     last = record.last_apply
     return StatusReport(
@@ -52,8 +56,14 @@ def build(seen: Seen, *, plan: str | None = None, gates: str | None = None) -> S
                           pending=s.pending) for s in record.strays],
         cutover=record.cutover, serial=record.serial, lineage=record.lineage,
         agent=seen.agent, override=seen.override, deferred=seen.deferred,
-        plan=plan, gates=gates,
+        plan=_plan(plan), gates=gates,
     )
+
+
+def _plan(plan: Plan | str | None) -> PlanView | None:
+    if plan is None or isinstance(plan, str):
+        return None if plan is None else PlanView(summary=plan)
+    return PlanView(summary=plan.summary or "no changes", changes=list(plan.changes))
 
 
 def running(app: AppRecord, live: UnitState | None) -> tuple[bool, bool]:

@@ -16,6 +16,7 @@ from reconciler.report.gather import Objects, gather
 
 if TYPE_CHECKING:
     from reconciler.base.unit import UnitState
+    from schemas.plan import Plan
     from schemas.record import StateRecord
     from schemas.report import CatalogRow, StatusReport
 
@@ -25,7 +26,7 @@ FIRST_ONLY_NEW = {"claims", "claims_known", "said"}
 
 def report(layout: Layout, *, store: Objects | None = None,
            state: Callable[[str], UnitState] | None = None, manager: str | None = None,
-           record: StateRecord | None = None, plan: str | None = None,
+           record: StateRecord | None = None, plan: Plan | str | None = None,
            gates: str | None = None) -> StatusReport:
     """The car now. `state` asks the service manager (`manager`) about a unit; `plan`
     and `gates`, where a face shows them, say what an apply would do and the gates now."""

@@ -7,9 +7,11 @@ the report is pure, and each face is checked against it, then against a changed 
 from __future__ import annotations
 
 import json
+from datetime import datetime, timezone
 from pathlib import Path
 
 from reconciler.base.unit import UnitState
+from reconciler.core.planning.plan import seal
 from reconciler.core.privzone.messages import app_info_message
 from reconciler.core.publication import read_status_file, status_file
 from reconciler.frontends.ble.answers import summary_of
@@ -20,6 +22,7 @@ from reconciler.report.gather import Listing, Seen
 from reconciler.report.status import json_of
 from schemas.agent import AgentStatus
 from schemas.catalog import CatalogApp
+from schemas.plan import Action, Change
 from schemas.record import AppRecord, AppStatus, LastApply, RepositoryRecord, StateRecord
 from schemas.report import StatusReport
 
@@ -130,3 +133,20 @@ def test_the_report_is_a_versioned_document() -> None:
     assert body["version"] == 1
     assert StatusReport.model_validate({k: v for k, v in body.items() if k != "app"}) == \
         build(seen())
+
+
+def test_the_phone_summary_says_the_plan_the_report_holds() -> None:
+    """The plan an apply would run now goes into the report whole (each change and why);
+    the phone's summary renders its summary, and a plan that could not be made says why."""
+    change = Change(address="app.recorder", action=Action.UPDATE,
+                    reason="recorder is not running: start")
+    plan = seal(StateRecord(), [change], [], now=datetime(2026, 11, 27, tzinfo=timezone.utc),
+                lpam_version="t")
+    report = build(seen(), plan=plan, gates="speed: open (stationary)")
+    assert report.plan is not None and report.plan.changes == [change]
+    assert summary_of(report)["plan"] == plan.summary != ""
+    assert summary_of(report)["gates"] == "speed: open (stationary)"
+    assert json_of(report)["plan"]["changes"][0]["reason"] == change.reason
+    unknown = build(seen(), plan="not known: the lock is held")
+    assert summary_of(unknown)["plan"] == "not known: the lock is held"
+    assert summary_of(build(seen()))["plan"] == ""  # status itself plans nothing

@@ -21,6 +21,7 @@ from reconciler.core.privzone import messages as m
 from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.events import Report
 from reconciler.workflow.machine import Machine
+from schemas.plan import Plan
 from schemas.report import StatusReport, Unreadable
 
 PHONE_LOCK_WAIT = 2.0
@@ -148,12 +149,13 @@ def summary_of(shown: StatusReport) -> dict[str, str]:
         "desired_revision": "" if agent is None else agent.desired_revision or "",
         "override": "none" if local is None else "? since ?"
         if isinstance(local, Unreadable) else f"{local.by} since {local.since}",
-        "plan": shown.plan or "", "gates": shown.gates or "",
+        "plan": "" if shown.plan is None else shown.plan.summary, "gates": shown.gates or "",
     }
 
 
-def _plan_and_gates(machine: Machine) -> tuple[str, str]:
-    """What an apply would do now, offline, and the update gates now."""
+def _plan_and_gates(machine: Machine) -> tuple[Plan | str, str]:
+    """What an apply would do now, offline (or why it is not known), and the update
+    gates now."""
     from reconciler.workflow.events import Event
     from reconciler.workflow.gates import in_force
     from reconciler.workflow.planning import plan
@@ -167,17 +169,15 @@ def _plan_and_gates(machine: Machine) -> tuple[str, str]:
         return f"not known: {reason(exc)}", "not known"
     if wanted is None:
         return "no desired state on this car", "none"
-    said = {}
+    made: Plan | str
     try:
         made = plan(machine, wanted.label, wanted.desired, report=quiet, offline=True,
                     lock_timeout=PHONE_LOCK_WAIT, places=wanted.places)
-        said["plan"] = made.summary or "no changes"
     except LpamError as exc:
-        said["plan"] = f"not known: {reason(exc)}"
+        made = f"not known: {reason(exc)}"
     try:
         gate = machine.gate_for(wanted.desired, wanted.base_dir)
-        said["gates"] = "none" if gate is None else \
-            "; ".join(g.describe() for g in gate.states())
+        gates = "none" if gate is None else "; ".join(g.describe() for g in gate.states())
     except LpamError as exc:
-        said["gates"] = f"not known: {reason(exc)}"
-    return said["plan"], said["gates"]
+        gates = f"not known: {reason(exc)}"
+    return made, gates
