@@ -16,13 +16,15 @@ import sys
 import traceback
 from collections.abc import Callable
 from datetime import datetime, timezone
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 from reconciler import __version__
 from reconciler.base.errors import LpamError, Terminated
 from reconciler.base.layout import Layout
 from reconciler.base.text import printable
-from reconciler.workflow.events import Event
+
+if TYPE_CHECKING:
+    from reconciler.workflow.events import Event
 
 T = TypeVar("T")
 

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Union
+from typing import TYPE_CHECKING, Union
 
-from schemas.plan import Plan
+if TYPE_CHECKING:  # `lpam --version` and `--help` load no pydantic
+    from schemas.plan import Plan
 
 
 @dataclass(frozen=True)
