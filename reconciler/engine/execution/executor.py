@@ -6,8 +6,7 @@ back (engine/execution/recovery.py): the steps back to the good apps that ran be
 planned by the same rules as any plan (core/planning/modes.py `steps_back`: whatever the
 new app may have started is stopped before it is uninstalled; an old app whose
 uninstall.sh failed is installed again rather than uninstalled twice) and journalled like
-any step, so the car
-is never left with two apps nor, when the old one can run, with none. With no previous
+any step, so the car is never left with two apps nor, when the old one can run, with none. With no previous
 app, the half-installed new one is removed. A power cut or a kill, by contrast, is
 resumed forward: the next apply re-plans from the state record and continues where this
 one stopped — verifying an app whose health check did not run to its end, and finishing
@@ -132,13 +131,8 @@ def gated(plan: Plan, gate: Gate) -> bool:
     (an app whose claims are not known holds the panda)."""
     if not gate.unclaimed_free:
         return True
-    for step in plan.steps:
-        if step.phase is not Phase.CUTOVER:
-            continue
-        app = getattr(step, "app", None)
-        if not isinstance(app, AppGeneration) or app.claims:
-            return True
-    return False
+    apps = [getattr(step, "app", None) for step in plan.steps if step.phase is Phase.CUTOVER]
+    return any(not isinstance(app, AppGeneration) or app.claims for app in apps)
 
 
 def _pass_gates(gate: Gate, ctx: Context, journal: AdvisoryJournal,

@@ -32,7 +32,6 @@ _HEX40 = re.compile(r"^[0-9a-f]{40}$")
 _REPO_HINT = "write owner/repo, e.g. jmscslgroup/libpanda-default-apps"
 
 
-
 def from_yaml(files: LpamFiles) -> tuple[dict[str, Any], list[str], list[str]]:
     path = files.etc_dir / YAML_MANIFEST
     doc = load(path, files.texts[YAML_MANIFEST])
