@@ -6,11 +6,11 @@ back (engine/execution/recovery.py): the steps back to the good apps that ran be
 planned by the same rules as any plan (core/planning/modes.py `steps_back`: whatever the
 new app may have started is stopped before it is uninstalled; an old app whose
 uninstall.sh failed is installed again rather than uninstalled twice) and journalled like
-any step, so the car is never left with two apps nor, when the old one can run, with none. With no previous
-app, the half-installed new one is removed. A power cut or a kill, by contrast, is
-resumed forward: the next apply re-plans from the state record and continues where this
-one stopped — verifying an app whose health check did not run to its end, and finishing
-a rollback that had begun, toward the good app the record's `cutover` names.
+any step, so the car is never left with two apps nor, when the old one can run, with none.
+With no previous app, the half-installed new one is removed. A power cut or a kill, by
+contrast, is resumed forward: the next apply re-plans from the state record and continues
+where this one stopped — verifying an app whose health check did not run to its end, and
+finishing a rollback that had begun, toward the good app the record's `cutover` names.
 """
 
 from __future__ import annotations

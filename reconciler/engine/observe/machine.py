@@ -90,14 +90,9 @@ def dependencies(layout: Layout, app: AppTarget, record: StateRecord,
 def _taken_over(layout: Layout, record: StateRecord,
                 services: Services | None) -> dict[str, UnitState]:
     """The unit of each app LPAM installed, as its manager says (its `service` file)."""
-    found: dict[str, UnitState] = {}
-    for stray in record.strays:
-        if stray.folder is None or stray.stopped:
-            continue
-        state = live_state(appdir.service_of(layout.libpanda_apps / stray.folder), services)
-        if state is not None:
-            found[stray.name] = state
-    return found
+    found = {s.name: live_state(appdir.service_of(layout.libpanda_apps / s.folder), services)
+             for s in record.strays if s.folder is not None and not s.stopped}
+    return {name: state for name, state in found.items() if state is not None}
 
 
 def asks_manager(record: StateRecord) -> bool:
