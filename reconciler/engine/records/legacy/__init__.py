@@ -44,11 +44,8 @@ from reconciler.engine.records.legacy.files import (
     APP_FILE,
     CSV_MANIFEST,
     DEFAULT_ETC_DIR,
-    MAX_BYTES,
     TOP_FILES,
-    YAML_BACKUP,
     YAML_MANIFEST,
-    Clone,
     LpamFiles,
     comment_safe,
     gather,
@@ -61,17 +58,8 @@ from reconciler.engine.records.legacy.notes import (
     wrap_note,
 )
 
-__all__ = [
-    "APP_FILE",
-    "CSV_MANIFEST",
-    "DEFAULT_ETC_DIR",
-    "MAX_BYTES",
-    "TOP_FILES",
-    "YAML_BACKUP",
-    "YAML_MANIFEST",
-    "Clone",
+__all__ = [  # the package's own flow, and the parsers tested on text alone
     "Imported",
-    "LpamFiles",
     "branch_of_head",
     "convert",
     "gather",
@@ -79,7 +67,6 @@ __all__ = [
     "parse_app_file",
     "parse_manifest_csv",
     "parse_ros_csv",
-    "ros_notes",
 ]
 
 
