@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -28,6 +29,7 @@ from reconciler.base.atomic import fsync_dir, write_atomic
 from reconciler.base.errors import ConfigError, LpamError, StepError
 from reconciler.base.layout import Layout, slug
 from reconciler.base.reading import read_bounded
+from reconciler.core.planning.model import app_folder
 from reconciler.engine.records.legacy.files import APP_FILE, MAX_BYTES, YAML_MANIFEST
 
 if TYPE_CHECKING:
@@ -43,8 +45,6 @@ def point(layout: Layout, folder: str, target: Path) -> Path:
     link.parent.mkdir(parents=True, exist_ok=True)
     if link.exists() and not link.is_symlink():
         if forget_export(layout, folder):
-            import shutil
-
             shutil.rmtree(link)  # a folder lpam exported itself (keep_offered)
         else:
             _move_aside(layout, link)
@@ -168,7 +168,7 @@ def keep_offered(layout: Layout, store: Store, record: StateRecord) -> None:
         return
     exported = _exported(layout)
     before = dict(exported)
-    installed = {_folder_of(a.path) for a in record.apps}
+    installed = {app_folder(a.path) for a in record.apps}
     for repo in record.repositories:
         for folder, path in _offered(store, repo.key, repo.commit):
             if folder in installed:
@@ -190,12 +190,6 @@ def _used_lpam(layout: Layout) -> bool:
     return (layout.libpanda / YAML_MANIFEST).is_file() or (layout.libpanda / APP_FILE).is_file()
 
 
-def _folder_of(path: str) -> str:
-    from reconciler.core.planning.model import app_folder
-
-    return app_folder(path)
-
-
 def _offered(store: Store, key: str, commit: str) -> list[tuple[str, str]]:
     """(folder, path in the repository) of each app the catalog at `commit` lists."""
     from reconciler.core.documents import parse_catalog
@@ -209,7 +203,7 @@ def _offered(store: Store, key: str, commit: str) -> list[tuple[str, str]]:
                                 data.decode("utf-8", "replace"))
     except LpamError:
         return []  # a catalog lpam cannot read offers nothing here; the plan says why
-    return [(_folder_of(app.path), app.path) for app in catalog.apps]
+    return [(app_folder(app.path), app.path) for app in catalog.apps]
 
 
 def _exported(layout: Layout) -> dict[str, str]:
@@ -224,8 +218,6 @@ def _exported(layout: Layout) -> dict[str, str]:
 def _export(layout: Layout, store: Store, key: str, commit: str, path: str,
             place: Path) -> None:
     """The folder at `commit`, put in place whole (exported beside it, then renamed)."""
-    import shutil
-
     tmp = place.parent / f".{place.name}.lpam-export-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     try:
