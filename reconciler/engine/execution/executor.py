@@ -18,7 +18,7 @@ from __future__ import annotations
 import threading
 import uuid
 from collections.abc import Callable
-from concurrent.futures import CancelledError
+from concurrent.futures import CancelledError, ThreadPoolExecutor
 
 from reconciler.base.errors import Deferred, LpamError, StateWriteError, StopRequested, Terminated
 from reconciler.base.layout import KEEP_GENERATIONS
@@ -173,8 +173,6 @@ def _checkouts(batch: list[CheckoutStep], done: int, total: int, ctx: Context,
     end, its record entry and its progress line follow in plan order, in this thread. A
     failure lets the checkouts already under way finish (and be recorded) and starts no
     more; the first failure in plan order is raised."""
-    from concurrent.futures import ThreadPoolExecutor
-
     lock = threading.Lock()
 
     def work(step: CheckoutStep) -> None:

@@ -44,6 +44,7 @@ from reconciler.core.planning.model import (
     WorkspaceTarget,
     short,
 )
+from reconciler.engine.records import damage
 from schemas.catalog import (
     CATALOG_FILE,
     SERVICE_PREFIX,
@@ -125,8 +126,6 @@ def sound_copy(store: Resolving, key: str, url: str, *, renew: bool, notice: Not
     """Make sure the key's copy in the store is sound before anything reads it: a damaged
     copy is fetched anew from `url` when `renew` (apply), else refused (a plan changes
     nothing); see reconciler/engine/records/damage.py."""
-    from reconciler.engine.records import damage
-
     found = store.damage(key)
     if found is None:
         return

@@ -28,7 +28,9 @@ from typing import TYPE_CHECKING
 from reconciler.base.atomic import fsync_dir, write_atomic
 from reconciler.base.errors import ConfigError, LpamError, StepError
 from reconciler.base.layout import Layout, slug
+from reconciler.base.loading import dump, load
 from reconciler.base.reading import read_bounded
+from reconciler.base.unit import check_unit_name
 from reconciler.core.planning.model import app_folder
 from reconciler.engine.records.legacy.files import APP_FILE, MAX_BYTES, YAML_MANIFEST
 
@@ -87,8 +89,6 @@ def set_current(layout: Layout, folder: str | None) -> None:
 
 
 def _set_manifest(path: Path, folder: str | None) -> None:
-    from reconciler.base.loading import dump, load
-
     try:
         doc = load(path, read_bounded(path, limit=MAX_BYTES, follow_symlinks=False)
                    .decode("utf-8", "replace"))
@@ -123,8 +123,6 @@ def lpam_current(layout: Layout) -> str | None:
     manifest = layout.libpanda / YAML_MANIFEST
     try:
         if manifest.is_file():
-            from reconciler.base.loading import load
-
             data = load(manifest, read_bounded(manifest, limit=MAX_BYTES, follow_symlinks=False)
                         .decode("utf-8", "replace")).data
             value = data.get("current") if isinstance(data, dict) else None
@@ -146,8 +144,6 @@ def lpam_current(layout: Layout) -> str | None:
 def service_of(folder: Path) -> str | None:
     """The unit an LPAM app's `service` file names (read without following a link); None
     when it has none or names no valid unit."""
-    from reconciler.base.unit import check_unit_name
-
     try:
         words = read_bounded(folder / "service", limit=4096, follow_symlinks=False).split()
         return check_unit_name(words[0].decode("utf-8", "replace")) if words else None
