@@ -74,16 +74,14 @@ def dependencies(layout: Layout, app: AppTarget, record: StateRecord,
         key = wanted.ros_build
         workspace = ports.workspace(Path(wanted.workspace.path), wanted.workspace.user)
         ros_built = key is not None and workspace.built(key)
-    installed: dict[str, str] = {}
     now = record.installed(app.name)
-    if now is not None:
-        meta = generations.read_meta(layout.generation_meta(now.name, now.generation))
-        installed = dict(meta.ros) if meta is not None else {}
+    meta = None if now is None else \
+        generations.read_meta(layout.generation_meta(now.name, now.generation))
     return DepsObserved(
         apt_missing=tuple(ports.packages.missing(wanted.apt)) if wanted.apt else (),
         pip_unsatisfied=tuple(ports.envs.unsatisfied(wanted.pip)) if wanted.pip else (),
         venv_ready=ports.envs.ready(wanted.pip) if wanted.pip else True,
-        ros_built=ros_built, ros_installed=installed,
+        ros_built=ros_built, ros_installed=dict(meta.ros) if meta is not None else {},
     )
 
 
