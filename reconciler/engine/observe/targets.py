@@ -100,10 +100,9 @@ def workspace_target(desired: DesiredState, root: Path,
     """`ros:` with its defaults: the libpanda user (else lpam's own) and their ~/catkin_ws,
     where the field's scripts look."""
     user = desired.ros.user or default_user or getpass.getuser()
-    if desired.ros.workspace is not None:
-        path = Layout(root).under(desired.ros.workspace)
-    else:
-        path = Layout(root).home(user) / "catkin_ws"
+    layout = Layout(root)
+    path = layout.home(user) / "catkin_ws" if desired.ros.workspace is None \
+        else layout.under(desired.ros.workspace)
     return WorkspaceTarget(path=str(path), user=user)
 
 
