@@ -29,7 +29,6 @@ from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.steps import run
 from reconciler.engine.records.journal import Journal
 from reconciler.engine.records.state import read_record
-from schemas.enums import StrEnum
 from schemas.plan import Phase, Step
 from schemas.record import (
     ApplyResult,
@@ -153,18 +152,13 @@ def pending(record: StateRecord) -> Rollback | None:
     return record.cutover.rollback if record.cutover is not None else None
 
 
-class Outcome(StrEnum):
-    """How the return to the app that ran before ended: what is decided on (the apply is
-    `rolled back` only when the car is back), never the text said about it."""
-
-    NONE = "none"  # nothing to roll back: the failure was before the cutover, or no step
-    BACK = "back"  # the previous app (or no app) is back
-    FAILED = "failed"  # the rollback failed too
-
-
 @dataclass(frozen=True)
 class RollbackResult:
-    outcome: Outcome
+    """How the return to the app that ran before ended: `back` is what is decided on (the
+    apply is `rolled back` only when the car is back), never the text said about it."""
+
+    back: bool  # the previous app (or no app) is back; not when the rollback failed too,
+    # nor when there was nothing to roll back (a failure before the cutover, or no step)
     said: str = ""  # what happened, to add to the failure's message
 
 
@@ -175,10 +169,10 @@ def roll_back(failed: Step, exc: LpamError, previous: list[AppRecord], ctx: Cont
     the apply is undone (core/planning/ensemble.py orders it by what the apps claim). The
     rollback is written down before it begins."""
     if failed.phase is not Phase.CUTOVER:
-        return RollbackResult(Outcome.NONE)
+        return RollbackResult(back=False)
     steps = steps_back(ctx.record, previous, ctx.app_folders().present())
     if not steps:
-        return RollbackResult(Outcome.NONE)
+        return RollbackResult(back=False)
     what = f"rolling back to {names(previous)}" if previous else \
         "removing the half-installed app"
     try:
@@ -190,9 +184,9 @@ def roll_back(failed: Step, exc: LpamError, previous: list[AppRecord], ctx: Cont
             progress(f"  rollback: {step.id} …")
             journalled(step, f"rollback/{step.id}", ctx, journal)
     except LpamError as again:
-        return RollbackResult(Outcome.FAILED, f" {what.capitalize()} failed too: "
+        return RollbackResult(False, f" {what.capitalize()} failed too: "
                               f"{again.message}.")
-    return RollbackResult(Outcome.BACK, f" Rolled back to {names(previous)}." if previous
+    return RollbackResult(True, f" Rolled back to {names(previous)}." if previous
                           else " Removed the new app again.")
 
 
@@ -219,7 +213,7 @@ def fail(step: Step, exc: LpamError, previous: list[AppRecord], ctx: Context,
     attempted = changed(ctx.record, previous)
     rolled = roll_back(step, exc, previous, ctx, journal, progress,
                        record_result=record_result)
-    back = rolled.outcome is Outcome.BACK
+    back = rolled.back
     message = f"step {step.id} failed: {exc.message}.{rolled.said} {where(step.phase, ctx)}"
     hint = exc.hint or f"fix the cause and run `{ctx.command}` again; it resumes here"
     try:
