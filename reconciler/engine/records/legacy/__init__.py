@@ -143,9 +143,8 @@ def convert(files: LpamFiles) -> Imported:
     ]
     notes += notes_on_app(files, desired["app"])
     notes += notes_on_clones(files, desired["repositories"], era1=used == [APP_FILE])
-    for name, text in files.texts.items():
-        if name.endswith("/rosRepositories.csv"):
-            notes += ros_notes(name, text)
+    notes += [note for name, text in files.texts.items()
+              if name.endswith("/rosRepositories.csv") for note in ros_notes(name, text)]
     branches = _pin_to_clones(desired["repositories"], files)
     if branches:
         notes.append("Repositories are pinned to the commit LPAM's clone holds (the branch "
