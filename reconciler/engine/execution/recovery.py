@@ -29,6 +29,7 @@ from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.steps import run
 from reconciler.engine.records.journal import Journal
 from reconciler.engine.records.state import read_record
+from schemas.enums import StrEnum
 from schemas.plan import Phase, Step
 from schemas.record import (
     ApplyResult,
@@ -152,13 +153,18 @@ def pending(record: StateRecord) -> Rollback | None:
     return record.cutover.rollback if record.cutover is not None else None
 
 
+class Outcome(StrEnum):
+    """How the return to the app that ran before ended: what is decided on (the apply is
+    `rolled back` only when the car is back), never the text said about it."""
+
+    NONE = "none"  # nothing to roll back: the failure was before the cutover, or no step
+    BACK = "back"  # the previous app (or no app) is back
+    FAILED = "failed"  # the rollback failed too
+
+
 @dataclass(frozen=True)
 class RollbackResult:
-    """How the return to the app that ran before ended: `back` is what is decided on (the
-    apply is `rolled back` only when the car is back), never the text said about it."""
-
-    back: bool  # the previous app (or no app) is back; not when the rollback failed too,
-    # nor when there was nothing to roll back (a failure before the cutover, or no step)
+    outcome: Outcome
     said: str = ""  # what happened, to add to the failure's message
 
 
@@ -169,10 +175,10 @@ def roll_back(failed: Step, exc: LpamError, previous: list[AppRecord], ctx: Cont
     the apply is undone (core/planning/ensemble.py orders it by what the apps claim). The
     rollback is written down before it begins."""
     if failed.phase is not Phase.CUTOVER:
-        return RollbackResult(back=False)
+        return RollbackResult(Outcome.NONE)
     steps = steps_back(ctx.record, previous, ctx.app_folders().present())
     if not steps:
-        return RollbackResult(back=False)
+        return RollbackResult(Outcome.NONE)
     what = f"rolling back to {names(previous)}" if previous else \
         "removing the half-installed app"
     try:
@@ -184,9 +190,9 @@ def roll_back(failed: Step, exc: LpamError, previous: list[AppRecord], ctx: Cont
             progress(f"  rollback: {step.id} …")
             journalled(step, f"rollback/{step.id}", ctx, journal)
     except LpamError as again:
-        return RollbackResult(False, f" {what.capitalize()} failed too: "
+        return RollbackResult(Outcome.FAILED, f" {what.capitalize()} failed too: "
                               f"{again.message}.")
-    return RollbackResult(True, f" Rolled back to {names(previous)}." if previous
+    return RollbackResult(Outcome.BACK, f" Rolled back to {names(previous)}." if previous
                           else " Removed the new app again.")
 
 
@@ -213,7 +219,7 @@ def fail(step: Step, exc: LpamError, previous: list[AppRecord], ctx: Context,
     attempted = changed(ctx.record, previous)
     rolled = roll_back(step, exc, previous, ctx, journal, progress,
                        record_result=record_result)
-    back = rolled.back
+    back = rolled.outcome is Outcome.BACK
     message = f"step {step.id} failed: {exc.message}.{rolled.said} {where(step.phase, ctx)}"
     hint = exc.hint or f"fix the cause and run `{ctx.command}` again; it resumes here"
     try:
