@@ -91,10 +91,10 @@ def _guarded_parser() -> type:
                     raise _Refused(f"the document holds more than {MAX_VALUES} values", mark,
                                    "lpam's documents hold tens of values; is it the right "
                                    "file?")
-            if isinstance(event, events.ScalarEvent) and _SURROGATES.search(event.value):
-                raise _Refused("the text contains a lone surrogate (an invalid \\uD800-"
-                               "\\uDFFF escape)", mark, "write the character itself, or "
-                               "escape it as one \\U00XXXXXX code point")
+                if _SURROGATES.search(event.value):
+                    raise _Refused("the text contains a lone surrogate (an invalid \\uD800-"
+                                   "\\uDFFF escape)", mark, "write the character itself, or "
+                                   "escape it as one \\U00XXXXXX code point")
             if isinstance(event, events.CollectionStartEvent):
                 self.depth += 1
                 if self.depth > MAX_DEPTH:
@@ -240,17 +240,14 @@ def locate(tree: Any, loc: Iterable[str | int]) -> tuple[int, int]:
         lc = getattr(node, "lc", None)
         try:
             if isinstance(node, Mapping) and part in node:
-                if lc is not None:
-                    ln, col = lc.key(part)
-                    line, column = ln + 1, col + 1
-                node = node[part]
+                at = lc.key(part) if lc is not None else None
             elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
-                if lc is not None:
-                    ln, col = lc.item(part)
-                    line, column = ln + 1, col + 1
-                node = node[part]
+                at = lc.item(part) if lc is not None else None
             else:
                 break
+            if at is not None:
+                line, column = at[0] + 1, at[1] + 1
+            node = node[part]
         except (KeyError, TypeError, AttributeError):
             break
     return line, column

@@ -65,6 +65,7 @@ def read_bounded(
         if exc.errno == errno.ENAMETOOLONG:
             raise ConfigError(f"{what}: the path is too long", path=path) from None
         raise ConfigError(f"cannot read {what}: {exc.strerror}", path=path, hint=hint) from None
+    too_large = f"{what} is larger than {_size(limit)}; is it the right file?"
     try:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):
@@ -73,10 +74,7 @@ def read_bounded(
                 hint=hint or "point lpam at a regular file",
             )
         if info.st_size > limit:
-            raise ConfigError(
-                f"{what} is larger than {_size(limit)}; is it the right file?", path=path,
-                hint=hint,
-            )
+            raise ConfigError(too_large, path=path, hint=hint)
         chunks: list[bytes] = []
         remaining = limit + 1  # one byte more than allowed tells a file that grew meanwhile
         while remaining > 0:
@@ -91,9 +89,7 @@ def read_bounded(
     finally:
         os.close(fd)
     if len(data) > limit:
-        raise ConfigError(
-            f"{what} is larger than {_size(limit)}; is it the right file?", path=path, hint=hint
-        )
+        raise ConfigError(too_large, path=path, hint=hint)
     return data
 
 

@@ -29,10 +29,6 @@ from reconciler.engine.records.state import write_record
 from schemas.record import AppRecord, DesiredRef, StateRecord
 
 
-def new_run() -> str:
-    return uuid.uuid4().hex
-
-
 @dataclass
 class Context:
     """Everything a step may touch, passed explicitly."""
@@ -43,7 +39,7 @@ class Context:
     services: Services
     record: StateRecord
     clock: Callable[[], datetime]
-    run_id: Callable[[], str] = field(default=new_run)
+    run_id: Callable[[], str] = field(default=lambda: uuid.uuid4().hex)
     monotonic: Callable[[], float] = time.monotonic
     sleep: Callable[[float], None] = time.sleep
     deps: DependencyPorts | None = None

@@ -6,12 +6,11 @@ back (engine/execution/recovery.py): the steps back to the good apps that ran be
 planned by the same rules as any plan (core/planning/modes.py `steps_back`: whatever the
 new app may have started is stopped before it is uninstalled; an old app whose
 uninstall.sh failed is installed again rather than uninstalled twice) and journalled like
-any step, so the car
-is never left with two apps nor, when the old one can run, with none. With no previous
-app, the half-installed new one is removed. A power cut or a kill, by contrast, is
-resumed forward: the next apply re-plans from the state record and continues where this
-one stopped — verifying an app whose health check did not run to its end, and finishing
-a rollback that had begun, toward the good app the record's `cutover` names.
+any step, so the car is never left with two apps nor, when the old one can run, with none.
+With no previous app, the half-installed new one is removed. A power cut or a kill, by
+contrast, is resumed forward: the next apply re-plans from the state record and continues
+where this one stopped — verifying an app whose health check did not run to its end, and
+finishing a rollback that had begun, toward the good app the record's `cutover` names.
 """
 
 from __future__ import annotations
@@ -19,7 +18,7 @@ from __future__ import annotations
 import threading
 import uuid
 from collections.abc import Callable
-from concurrent.futures import CancelledError
+from concurrent.futures import CancelledError, ThreadPoolExecutor
 
 from reconciler.base.errors import Deferred, LpamError, StateWriteError, StopRequested, Terminated
 from reconciler.base.layout import KEEP_GENERATIONS
@@ -132,13 +131,8 @@ def gated(plan: Plan, gate: Gate) -> bool:
     (an app whose claims are not known holds the panda)."""
     if not gate.unclaimed_free:
         return True
-    for step in plan.steps:
-        if step.phase is not Phase.CUTOVER:
-            continue
-        app = getattr(step, "app", None)
-        if not isinstance(app, AppGeneration) or app.claims:
-            return True
-    return False
+    apps = [getattr(step, "app", None) for step in plan.steps if step.phase is Phase.CUTOVER]
+    return any(not isinstance(app, AppGeneration) or app.claims for app in apps)
 
 
 def _pass_gates(gate: Gate, ctx: Context, journal: AdvisoryJournal,
@@ -179,8 +173,6 @@ def _checkouts(batch: list[CheckoutStep], done: int, total: int, ctx: Context,
     end, its record entry and its progress line follow in plan order, in this thread. A
     failure lets the checkouts already under way finish (and be recorded) and starts no
     more; the first failure in plan order is raised."""
-    from concurrent.futures import ThreadPoolExecutor
-
     lock = threading.Lock()
 
     def work(step: CheckoutStep) -> None:

@@ -28,6 +28,7 @@ from reconciler.core.planning.modes import names, steps_back
 from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.steps import run
 from reconciler.engine.records.journal import Journal
+from reconciler.engine.records.state import read_record
 from schemas.enums import StrEnum
 from schemas.plan import Phase, Step
 from schemas.record import (
@@ -313,8 +314,6 @@ def where(phase: Phase, ctx: Context) -> str:
 def unwritable_error(ctx: Context, exc: StateWriteError) -> StateWriteError:
     """The state record cannot be written: no step did work it could not record, so the
     record on disk is exact. Say what it shows and what the next apply does from it."""
-    from reconciler.engine.records.state import read_record
-
     try:
         record = read_record(ctx.layout)
     except LpamError:

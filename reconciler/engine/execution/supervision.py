@@ -79,7 +79,7 @@ def unit_for(ctx: Context, app: AppRecord, place: Path, run: Runtime | None = No
     folder = app_folder(app.path)
     return Unit(name=unit_name(folder), argv=tuple(argv), directory=place, environment=env,
                 user=user, description=f"lpam app {app.name} ({app.generation})",
-                log=ctx.layout.logs / "apps" / f"{folder}.log")
+                log=ctx.layout.app_logs / f"{folder}.log")
 
 
 def await_unit(ctx: Context, app: str, unit: str, *, active: bool, script: str | None) -> UnitState:

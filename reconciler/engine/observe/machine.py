@@ -74,30 +74,23 @@ def dependencies(layout: Layout, app: AppTarget, record: StateRecord,
         key = wanted.ros_build
         workspace = ports.workspace(Path(wanted.workspace.path), wanted.workspace.user)
         ros_built = key is not None and workspace.built(key)
-    installed: dict[str, str] = {}
     now = record.installed(app.name)
-    if now is not None:
-        meta = generations.read_meta(layout.generation_meta(now.name, now.generation))
-        installed = dict(meta.ros) if meta is not None else {}
+    meta = None if now is None else \
+        generations.read_meta(layout.generation_meta(now.name, now.generation))
     return DepsObserved(
         apt_missing=tuple(ports.packages.missing(wanted.apt)) if wanted.apt else (),
         pip_unsatisfied=tuple(ports.envs.unsatisfied(wanted.pip)) if wanted.pip else (),
         venv_ready=ports.envs.ready(wanted.pip) if wanted.pip else True,
-        ros_built=ros_built, ros_installed=installed,
+        ros_built=ros_built, ros_installed=dict(meta.ros) if meta is not None else {},
     )
 
 
 def _taken_over(layout: Layout, record: StateRecord,
                 services: Services | None) -> dict[str, UnitState]:
     """The unit of each app LPAM installed, as its manager says (its `service` file)."""
-    found: dict[str, UnitState] = {}
-    for stray in record.strays:
-        if stray.folder is None or stray.stopped:
-            continue
-        state = live_state(appdir.service_of(layout.libpanda_apps / stray.folder), services)
-        if state is not None:
-            found[stray.name] = state
-    return found
+    found = {s.name: live_state(appdir.service_of(layout.libpanda_apps / s.folder), services)
+             for s in record.strays if s.folder is not None and not s.stopped}
+    return {name: state for name, state in found.items() if state is not None}
 
 
 def asks_manager(record: StateRecord) -> bool:

@@ -44,6 +44,7 @@ from reconciler.core.planning.model import (
     WorkspaceTarget,
     short,
 )
+from reconciler.engine.records import damage
 from schemas.catalog import (
     CATALOG_FILE,
     SERVICE_PREFIX,
@@ -51,7 +52,7 @@ from schemas.catalog import (
     CatalogApp,
     RosRepository,
 )
-from schemas.desired import AppSpec, DesiredState, RepositorySpec
+from schemas.desired import AppSpec, DesiredState
 from schemas.names import is_hex_commit, redact
 from schemas.service import DEFAULT_HEALTH_TIMEOUT, DEFAULT_SETTLE_SECONDS, Health
 
@@ -83,15 +84,13 @@ def resolve(
     """Desired state → Targets; raises before any change if a ref does not exist.
     `default_user` runs a scriptless app that names no `user:` (the libpanda user) and
     owns the ROS workspace; `root` is lpam's --root, under which the workspace lies."""
-    specs = desired.repositories
-    repos = _parallel(lambda s: _resolve_repo(s, base_dir, store, fetch, desired, notice),
-                      specs, fetch)
+    repos = _parallel(lambda s: _resolve_ref(s.key, desired.mirrored(s.source(base_dir)),
+                                             s.ref, store, fetch, notice),
+                      desired.repositories, fetch)
     workspace = workspace_target(desired, root, default_user)
-    apps = []
     bare: set[str] = set()  # repositories with no catalog, as reading them found
-    for spec in desired.apps:
-        apps.append(_resolve_app(desired, spec, repos, store, default_user, fetch,
-                                 workspace, notice, bare))
+    apps = [_resolve_app(desired, spec, repos, store, default_user, fetch, workspace, notice,
+                         bare) for spec in desired.apps]
     repos = [replace(r, no_catalog=True) if r.key in bare else r for r in repos]
     return Targets(tuple(repos), apps=tuple(apps))
 
@@ -101,10 +100,9 @@ def workspace_target(desired: DesiredState, root: Path,
     """`ros:` with its defaults: the libpanda user (else lpam's own) and their ~/catkin_ws,
     where the field's scripts look."""
     user = desired.ros.user or default_user or getpass.getuser()
-    if desired.ros.workspace is not None:
-        path = Layout(root).under(desired.ros.workspace)
-    else:
-        path = Layout(root).home(user) / "catkin_ws"
+    layout = Layout(root)
+    path = layout.home(user) / "catkin_ws" if desired.ros.workspace is None \
+        else layout.under(desired.ros.workspace)
     return WorkspaceTarget(path=str(path), user=user)
 
 
@@ -123,20 +121,10 @@ def _bring(store: Resolving, key: str, url: str, fetch: Fetch) -> None:
         store.fetch_objects(key, url)
 
 
-def _resolve_repo(
-    spec: RepositorySpec, base_dir: Path, store: Resolving, fetch: Fetch, desired: DesiredState,
-    notice: Notice,
-) -> RepoTarget:
-    return _resolve_ref(spec.key, desired.mirrored(spec.source(base_dir)), spec.ref, store,
-                        fetch, notice)
-
-
 def sound_copy(store: Resolving, key: str, url: str, *, renew: bool, notice: Notice) -> None:
     """Make sure the key's copy in the store is sound before anything reads it: a damaged
     copy is fetched anew from `url` when `renew` (apply), else refused (a plan changes
     nothing); see reconciler/engine/records/damage.py."""
-    from reconciler.engine.records import damage
-
     found = store.damage(key)
     if found is None:
         return
@@ -172,21 +160,17 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: Resolving,
         remote = store.ls_remote(url)
         commit = remote.resolve(ref)
         if commit is None:
-            heads = sorted(r.removeprefix("refs/heads/") for r in remote.refs
-                           if r.startswith("refs/heads/"))
-            tags = sorted(r.removeprefix("refs/tags/") for r in remote.refs
-                          if r.startswith("refs/tags/"))
+            heads, tags = (sorted(r.removeprefix(kind) for r in remote.refs
+                                  if r.startswith(kind)) for kind in ("refs/heads/", "refs/tags/"))
             what = f"ref {ref!r}" if ref else "a default branch"
             raise RefNotFoundError(
                 f"{what} not found in {redact(url)} (branches: {', '.join(heads) or 'none'}; "
                 f"tags: {', '.join(tags) or 'none'})",
                 hint="fix `ref:` in the desired state; nothing on the machine was changed",
             )
-        same_origin = store.origin_url(key) == url
-        if fetch is Fetch.CHECKOUT and not (same_origin and store.has_commit(key, commit)):
-            store.fetch(key, url)
-        elif fetch is Fetch.OBJECTS and not store.has_commit(key, commit):
-            store.fetch_objects(key, url)
+        if not store.has_commit(key, commit) or \
+                (fetch is Fetch.CHECKOUT and store.origin_url(key) != url):
+            _bring(store, key, url, fetch)
     return RepoTarget(key=key, url=url, ref=ref, commit=commit)
 
 

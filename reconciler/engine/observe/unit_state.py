@@ -31,12 +31,8 @@ _ALIASES = {"reloading": "active", "refreshing": "active"}
 
 def parse_properties(text: str) -> dict[str, str]:
     """`KEY=VALUE` lines as a dict; the first `=` splits (values may hold more)."""
-    properties: dict[str, str] = {}
-    for line in text.splitlines():
-        key, sep, value = line.partition("=")
-        if sep and key.strip():
-            properties[key.strip()] = value.strip()
-    return properties
+    pairs = (line.partition("=") for line in text.splitlines())
+    return {key.strip(): value.strip() for key, sep, value in pairs if sep and key.strip()}
 
 
 def parse_show(name: str, text: str) -> UnitState:

@@ -21,7 +21,7 @@ import json
 import uuid
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Optional, TypeVar
 
 from reconciler.base.atomic import write_atomic
 from reconciler.base.errors import ConfigError
@@ -32,6 +32,8 @@ from schemas.kinds import DocumentKind
 from schemas.record import AppRecord, StateRecord, Stray
 
 if TYPE_CHECKING:
+    from pydantic import BaseModel
+
     from schemas.agent import AgentStatus
     from schemas.override import LocalOverride
 
@@ -44,6 +46,7 @@ DAMAGED_HINT = (
 )
 
 ExitCode = Callable[[str], Optional[int]]
+_M = TypeVar("_M", bound="BaseModel")
 
 SETTLED = {"installing": "installed", "starting": "running", "stopping": "installed"}
 
@@ -51,32 +54,33 @@ SETTLED = {"installing": "installed", "starting": "running", "stopping": "instal
 def read_override(layout: Layout) -> LocalOverride | None:
     """The local override in force (`override.json`); None when the car follows its fleet
     file (or follows none)."""
-    from reconciler.base.loading import read_text
-    from reconciler.core.documents import parse_json
     from schemas.override import LocalOverride
 
-    path = layout.override
-    if not path.exists():
-        return None
-    return parse_json(DocumentKind.OVERRIDE, read_text(path), path, LocalOverride,
-                      hint="move the file aside: the car then follows its fleet file again")
+    return _read_optional(layout.override, DocumentKind.OVERRIDE, LocalOverride,
+                          "move the file aside: the car then follows its fleet file again")
 
 
 def read_agent_status(layout: Layout) -> AgentStatus | None:
     """What the agent's passes recorded (`status.json`); None where no agent ever ran."""
-    from reconciler.base.loading import read_text
-    from reconciler.core.documents import parse_json
     from schemas.agent import AgentStatus
 
-    path = layout.agent_status
+    return _read_optional(layout.agent_status, DocumentKind.AGENT_STATUS, AgentStatus,
+                          "move the file aside; the next pass writes a new one")
+
+
+def _read_optional(path: Path, kind: DocumentKind, model: type[_M], hint: str) -> _M | None:
+    from reconciler.base.loading import read_text
+    from reconciler.core.documents import parse_json
+
     if not path.exists():
         return None
-    return parse_json(DocumentKind.AGENT_STATUS, read_text(path), path, AgentStatus,
-                      hint="move the file aside; the next pass writes a new one")
+    return parse_json(kind, read_text(path), path, model, hint=hint)
 
 
 def read_record(layout: Layout) -> StateRecord:
     """The last recorded state, settled; on a machine with no record, the strays on disk."""
+    from reconciler.core.documents import parse_json
+
     path = layout.state_record
     hint = DAMAGED_HINT.format(path=path, generations=layout.generations)
     try:
@@ -85,11 +89,14 @@ def read_record(layout: Layout) -> StateRecord:
     except FileNotFoundError:
         return StateRecord(strays=found_installed(layout))
     try:
-        text = data.decode("utf-8")
+        record = parse_json(DocumentKind.STATE_RECORD, data.decode("utf-8"), path, StateRecord,
+                            hint=hint)
     except UnicodeDecodeError as exc:
         raise ConfigError(f"the state record is not UTF-8 text (byte {exc.start})",
                           path=path, hint=hint) from None
-    record = parse_record(text, path, hint=hint)
+    except RecursionError:
+        raise ConfigError("the state record is nested too deeply to be one lpam wrote",
+                          path=path, hint=hint) from None
     return settle(record, exit_code=lambda run: run_result(layout, run))
 
 
@@ -109,17 +116,6 @@ def found_installed(layout: Layout) -> list[Stray]:
 
 
 LPAM_GENERATION = "lpam"  # what `lpam status` and plans call an app LPAM installed
-
-
-def parse_record(text: str, path: Path, *, hint: str | None = None) -> StateRecord:
-    from reconciler.core.documents import parse_json
-
-    hint = hint or DAMAGED_HINT.format(path=path, generations="var/lib/lpam/generations")
-    try:
-        return parse_json(DocumentKind.STATE_RECORD, text, path, StateRecord, hint=hint)
-    except RecursionError:
-        raise ConfigError("the state record is nested too deeply to be one lpam wrote",
-                          path=path, hint=hint) from None
 
 
 def settle(record: StateRecord, *, exit_code: ExitCode) -> StateRecord:

@@ -11,13 +11,12 @@ unit is not. A scriptless app's unit is written by lpam and driven through the m
 Either way, every script and unit runs in `/etc/libpanda.d/apps/<folder>`, the link to the
 generation (the AppFolders port, engine/execution/ports.py), where the field's scripts expect it.
 
-Repository steps are idempotent on their outcome (a checkout already at its commit is left
-alone). Lifecycle steps write their *intent* to the state record before the script runs
-(`starting` with the run's id) and the outcome after it (`running`): whatever kills lpam in
-between, the next apply knows the app may be active, and — from the exit code the
-script's guard leaves behind (reconciler/engine/records/state.py settles it) — whether the script
-finished, so a finished script is never run twice and a cut-off one is run again only
-once it has certainly ended (the guard holds the apply lock until then).
+Lifecycle steps write their *intent* to the state record before the script runs
+(`starting` with the run's id) and the outcome after it (`running`): whatever kills lpam
+in between, the next apply knows the app may be active, and — from the exit code the
+script's guard leaves behind (reconciler/engine/records/state.py settles it) — whether the
+script finished, so a finished script is never run twice and a cut-off one is run again
+only once it has certainly ended (the guard holds the apply lock until then).
 
 Each runner takes its own kind of step (schemas/plan.py), validated when the plan was
 made or loaded: no argument is parsed here.

@@ -44,11 +44,8 @@ from reconciler.engine.records.legacy.files import (
     APP_FILE,
     CSV_MANIFEST,
     DEFAULT_ETC_DIR,
-    MAX_BYTES,
     TOP_FILES,
-    YAML_BACKUP,
     YAML_MANIFEST,
-    Clone,
     LpamFiles,
     comment_safe,
     gather,
@@ -61,17 +58,8 @@ from reconciler.engine.records.legacy.notes import (
     wrap_note,
 )
 
-__all__ = [
-    "APP_FILE",
-    "CSV_MANIFEST",
-    "DEFAULT_ETC_DIR",
-    "MAX_BYTES",
-    "TOP_FILES",
-    "YAML_BACKUP",
-    "YAML_MANIFEST",
-    "Clone",
+__all__ = [  # the package's own flow, and the parsers tested on text alone
     "Imported",
-    "LpamFiles",
     "branch_of_head",
     "convert",
     "gather",
@@ -79,7 +67,6 @@ __all__ = [
     "parse_app_file",
     "parse_manifest_csv",
     "parse_ros_csv",
-    "ros_notes",
 ]
 
 
@@ -156,9 +143,8 @@ def convert(files: LpamFiles) -> Imported:
     ]
     notes += notes_on_app(files, desired["app"])
     notes += notes_on_clones(files, desired["repositories"], era1=used == [APP_FILE])
-    for name, text in files.texts.items():
-        if name.endswith("/rosRepositories.csv"):
-            notes += ros_notes(name, text)
+    notes += [note for name, text in files.texts.items()
+              if name.endswith("/rosRepositories.csv") for note in ros_notes(name, text)]
     branches = _pin_to_clones(desired["repositories"], files)
     if branches:
         notes.append("Repositories are pinned to the commit LPAM's clone holds (the branch "

@@ -21,13 +21,17 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.base.atomic import fsync_dir, write_atomic
 from reconciler.base.errors import ConfigError, LpamError, StepError
 from reconciler.base.layout import Layout, slug
+from reconciler.base.loading import dump, load
 from reconciler.base.reading import read_bounded
+from reconciler.base.unit import check_unit_name
+from reconciler.core.planning.model import app_folder
 from reconciler.engine.records.legacy.files import APP_FILE, MAX_BYTES, YAML_MANIFEST
 
 if TYPE_CHECKING:
@@ -43,8 +47,6 @@ def point(layout: Layout, folder: str, target: Path) -> Path:
     link.parent.mkdir(parents=True, exist_ok=True)
     if link.exists() and not link.is_symlink():
         if forget_export(layout, folder):
-            import shutil
-
             shutil.rmtree(link)  # a folder lpam exported itself (keep_offered)
         else:
             _move_aside(layout, link)
@@ -87,8 +89,6 @@ def set_current(layout: Layout, folder: str | None) -> None:
 
 
 def _set_manifest(path: Path, folder: str | None) -> None:
-    from reconciler.base.loading import dump, load
-
     try:
         doc = load(path, read_bounded(path, limit=MAX_BYTES, follow_symlinks=False)
                    .decode("utf-8", "replace"))
@@ -123,8 +123,6 @@ def lpam_current(layout: Layout) -> str | None:
     manifest = layout.libpanda / YAML_MANIFEST
     try:
         if manifest.is_file():
-            from reconciler.base.loading import load
-
             data = load(manifest, read_bounded(manifest, limit=MAX_BYTES, follow_symlinks=False)
                         .decode("utf-8", "replace")).data
             value = data.get("current") if isinstance(data, dict) else None
@@ -146,8 +144,6 @@ def lpam_current(layout: Layout) -> str | None:
 def service_of(folder: Path) -> str | None:
     """The unit an LPAM app's `service` file names (read without following a link); None
     when it has none or names no valid unit."""
-    from reconciler.base.unit import check_unit_name
-
     try:
         words = read_bounded(folder / "service", limit=4096, follow_symlinks=False).split()
         return check_unit_name(words[0].decode("utf-8", "replace")) if words else None
@@ -168,7 +164,7 @@ def keep_offered(layout: Layout, store: Store, record: StateRecord) -> None:
         return
     exported = _exported(layout)
     before = dict(exported)
-    installed = {_folder_of(a.path) for a in record.apps}
+    installed = {app_folder(a.path) for a in record.apps}
     for repo in record.repositories:
         for folder, path in _offered(store, repo.key, repo.commit):
             if folder in installed:
@@ -190,12 +186,6 @@ def _used_lpam(layout: Layout) -> bool:
     return (layout.libpanda / YAML_MANIFEST).is_file() or (layout.libpanda / APP_FILE).is_file()
 
 
-def _folder_of(path: str) -> str:
-    from reconciler.core.planning.model import app_folder
-
-    return app_folder(path)
-
-
 def _offered(store: Store, key: str, commit: str) -> list[tuple[str, str]]:
     """(folder, path in the repository) of each app the catalog at `commit` lists."""
     from reconciler.core.documents import parse_catalog
@@ -209,7 +199,7 @@ def _offered(store: Store, key: str, commit: str) -> list[tuple[str, str]]:
                                 data.decode("utf-8", "replace"))
     except LpamError:
         return []  # a catalog lpam cannot read offers nothing here; the plan says why
-    return [(_folder_of(app.path), app.path) for app in catalog.apps]
+    return [(app_folder(app.path), app.path) for app in catalog.apps]
 
 
 def _exported(layout: Layout) -> dict[str, str]:
@@ -224,8 +214,6 @@ def _exported(layout: Layout) -> dict[str, str]:
 def _export(layout: Layout, store: Store, key: str, commit: str, path: str,
             place: Path) -> None:
     """The folder at `commit`, put in place whole (exported beside it, then renamed)."""
-    import shutil
-
     tmp = place.parent / f".{place.name}.lpam-export-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     try:

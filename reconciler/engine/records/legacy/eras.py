@@ -9,7 +9,6 @@ stand in for it. Each returns plain data plus lines for the output's comment hea
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,6 +20,7 @@ from reconciler.base.loading import Document, load
 from reconciler.engine.records.legacy.files import (
     APP_FILE,
     CSV_MANIFEST,
+    HEX40,
     YAML_MANIFEST,
     LpamFiles,
     comment_safe,
@@ -28,9 +28,7 @@ from reconciler.engine.records.legacy.files import (
 from schemas.kinds import DocumentKind
 from schemas.names import check_app_name, check_owner_repo, check_ref
 
-_HEX40 = re.compile(r"^[0-9a-f]{40}$")
 _REPO_HINT = "write owner/repo, e.g. jmscslgroup/libpanda-default-apps"
-
 
 
 def from_yaml(files: LpamFiles) -> tuple[dict[str, Any], list[str], list[str]]:
@@ -197,6 +195,6 @@ def branch_of_head(head: str | None) -> tuple[str | None, str]:
             return check_ref(branch), f"on branch {branch}"
         except ValueError:
             return None, f"on branch {comment_safe(branch)}, not a usable name: default branch"
-    if _HEX40.match(text):
+    if HEX40.fullmatch(text):
         return text, f"detached at {text}: pinned to that commit"
     return None, "branch unknown (no readable .git/HEAD): the default branch"

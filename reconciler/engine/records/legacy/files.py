@@ -23,7 +23,7 @@ YAML_MANIFEST = "app-manifest.yaml"
 YAML_BACKUP = "app-manifest.yaml.bak"  # LPAM's copy of an era-3 manifest after migrating it
 TOP_FILES = (YAML_MANIFEST, CSV_MANIFEST, APP_FILE, YAML_BACKUP)
 MAX_BYTES = 1024 * 1024
-_HEX40 = re.compile(r"[0-9a-f]{40}")
+HEX40 = re.compile(r"[0-9a-f]{40}")
 
 
 @dataclass(frozen=True)
@@ -119,14 +119,14 @@ def _commit(clone: Path, head: str | None) -> str | None:
     packed-refs, else HEAD itself when detached. None when it cannot be told."""
     text = (head or "").strip()
     if not text.startswith("ref: "):
-        return text if _HEX40.fullmatch(text) else None
+        return text if HEX40.fullmatch(text) else None
     ref = text[len("ref: "):]
     if ".." in ref or not ref.startswith("refs/heads/"):
         return None
     git = clone / ".git"
     try:
         loose = read_bounded(git / ref, limit=4096).decode("ascii").strip()
-        return loose if _HEX40.fullmatch(loose) else None
+        return loose if HEX40.fullmatch(loose) else None
     except (OSError, ConfigError, UnicodeDecodeError):
         pass
     try:
@@ -135,7 +135,7 @@ def _commit(clone: Path, head: str | None) -> str | None:
         return None
     for line in packed.splitlines():
         sha, _, name = line.partition(" ")
-        if name.strip() == ref and _HEX40.fullmatch(sha):
+        if name.strip() == ref and HEX40.fullmatch(sha):
             return sha
     return None
 
