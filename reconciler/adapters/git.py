@@ -226,9 +226,8 @@ class GitStore:
         with self._open(key) as repo:
             if repo is None:
                 return None
-            refs: dict[str, str] = {}
-            for name, sha in repo.refs.as_dict(Ref(b"refs/remotes/origin")).items():
-                refs["refs/heads/" + name.decode("utf-8")] = sha.decode("ascii")
+            refs = {"refs/heads/" + name.decode("utf-8"): sha.decode("ascii")
+                    for name, sha in repo.refs.as_dict(Ref(b"refs/remotes/origin")).items()}
             for name in repo.refs.as_dict(Ref(b"refs/tags")):
                 with contextlib.suppress(KeyError):
                     peeled = repo.get_peeled(Ref(b"refs/tags/" + name))
