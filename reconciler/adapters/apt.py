@@ -42,11 +42,8 @@ class AptPackages:
             ["dpkg-query", "-W", "-f=${Package}\t${db:Status-Abbrev}\n", *names],
             capture_output=True, text=True, timeout=60, check=False,
         )
-        installed = set()
-        for line in result.stdout.splitlines():
-            package, _, status = line.partition("\t")
-            if status.startswith("ii"):
-                installed.add(package)
+        fields = (line.partition("\t") for line in result.stdout.splitlines())
+        installed = {package for package, _, status in fields if status.startswith("ii")}
         return [name for name in names if name.split(":")[0] not in installed]
 
     def install(self, names: Sequence[str], *, log: Log) -> None:

@@ -57,10 +57,8 @@ _NAME = re.compile(r"<name>\s*([^<]+?)\s*</name>")
 def find_underlay() -> Path | None:
     """The first ROS distribution's setup file under /opt/ros; None when there is none
     (Debian's own catkin needs none)."""
-    for candidate in sorted(Path("/opt/ros").glob("*/setup.bash")):
-        if candidate.is_file():
-            return candidate
-    return None
+    return next((c for c in sorted(Path("/opt/ros").glob("*/setup.bash")) if c.is_file()),
+                None)
 
 
 def build_failed(package: str | None, details: list[str]) -> DependencyError:

@@ -105,12 +105,8 @@ def _answer(conn: Connection, proc: BaseProcess, deadline: float) -> dict[str, A
             raise Expired
         if conn.poll(min(remaining, _POLL)):
             try:
-                data = conn.recv_bytes()
-            except (EOFError, OSError):
-                return None  # the child died without answering
-            try:
-                answer = json.loads(data)
-            except ValueError:
+                answer = json.loads(conn.recv_bytes())
+            except (EOFError, OSError, ValueError):  # it died without answering, or garbled
                 return None
             return answer if isinstance(answer, dict) else None
         if not proc.is_alive() and not conn.poll(0):

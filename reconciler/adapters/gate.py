@@ -69,7 +69,6 @@ class VehicleGate:
         from reconciler.adapters.locks import probe
 
         with self._watch() as watch:
-            watch.start()
             busy = [b.describe() for b in probe(self._lock_specs())]
             return watch.decide(busy)
 
@@ -79,7 +78,6 @@ class VehicleGate:
         deadline = self.monotonic() + max(0.0, wait)
         said = self.monotonic()
         with self._watch() as watch:
-            watch.start()
             while True:
                 locks = UpdateLocks()
                 busy = [b.describe() for b in locks.take(self._lock_specs())]
@@ -88,17 +86,16 @@ class VehicleGate:
                     return _Locks(locks)  # held through the cutover
                 locks.release()
                 now = self.monotonic()
+                closed = "; ".join(s.describe() for s in states if not s.open)
                 if now >= deadline:
-                    closed = [s.describe() for s in states if not s.open]
                     raise Deferred(
-                        "the cutover is deferred: " + "; ".join(closed),
+                        "the cutover is deferred: " + closed,
                         hint="everything is prepared and the running app is untouched; "
                         "the next apply or agent pass tries again (`--wait SECONDS` waits "
                         "for the gates, `lpam gates` shows them)")
                 if now - said >= PROGRESS_EVERY:
                     said = now
-                    progress("waiting for the gates: "
-                             + "; ".join(s.describe() for s in states if not s.open))
+                    progress("waiting for the gates: " + closed)
                 watch.listen(min(deadline, now + LISTEN_SLICE))
 
     def _lock_specs(self) -> list[tuple[Path, bool]]:
@@ -106,8 +103,10 @@ class VehicleGate:
 
     @contextmanager
     def _watch(self) -> Iterator[_Watch]:
+        """The vehicle's source opened, what it already holds read (`_Watch.start`)."""
         watch = _Watch(self)
         try:
+            watch.start()
             yield watch
         finally:
             watch.close()

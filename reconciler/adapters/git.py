@@ -182,18 +182,16 @@ class GitStore:
 
     def folder_tree(self, key: str, commit: str, folder: str) -> str | None:
         with self._open(key) as repo:
-            found = None if repo is None else _lookup(repo, commit, folder)
-        if found is None or not stat.S_ISDIR(found[0]):
-            return None
-        return found[1].decode("ascii")
+            tree_id = None if repo is None else _folder(repo, commit, folder)
+        return None if tree_id is None else tree_id.decode("ascii")
 
     def folder_files(self, key: str, commit: str, folder: str) -> list[str]:
         """The names of the regular files directly in `commit:folder` ([] without it)."""
         with self._open(key) as repo:
-            found = None if repo is None else _lookup(repo, commit, folder)
-            if repo is None or found is None or not stat.S_ISDIR(found[0]):
+            tree_id = None if repo is None else _folder(repo, commit, folder)
+            if repo is None or tree_id is None:
                 return []
-            tree = repo.object_store[found[1]]
+            tree = repo.object_store[tree_id]
             assert isinstance(tree, Tree)
             return sorted(entry.path.decode("utf-8", "replace") for entry in tree.items()
                           if entry.mode is not None and stat.S_ISREG(entry.mode))
@@ -201,25 +199,16 @@ class GitStore:
     def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
         """See the `Store` port: every file below `commit:folder` and its blob id."""
         with self._open(key) as repo:
-            found = None if repo is None else _lookup(repo, commit, folder)
-            if repo is None or found is None or not stat.S_ISDIR(found[0]):
+            tree_id = None if repo is None else _folder(repo, commit, folder)
+            if repo is None or tree_id is None:
                 return None
             blobs: dict[str, str] = {}
-            todo: list[tuple[str, ObjectID]] = [("", found[1])]
-            while todo:
-                prefix, sha = todo.pop()
-                tree = repo.object_store[sha]
-                assert isinstance(tree, Tree)
-                for entry in tree.items():
-                    if entry.mode is None or entry.path is None or entry.sha is None:
-                        continue
-                    name = prefix + entry.path.decode("utf-8", "replace")
-                    if stat.S_ISDIR(entry.mode):
-                        todo.append((name + "/", entry.sha))
-                    elif stat.S_ISREG(entry.mode) or stat.S_ISLNK(entry.mode):
-                        blobs[name] = entry.sha.decode("ascii")
-                if len(blobs) > BLOBS_LIMIT:
-                    return None
+            for entry in iter_tree_contents(repo.object_store, tree_id):
+                assert entry.path is not None and entry.mode is not None and entry.sha is not None
+                if stat.S_ISREG(entry.mode) or stat.S_ISLNK(entry.mode):
+                    blobs[entry.path.decode("utf-8", "replace")] = entry.sha.decode("ascii")
+                    if len(blobs) > BLOBS_LIMIT:
+                        return None
             return blobs
 
     def signature(self, key: str, commit: str) -> tuple[bytes | None, bytes]:
@@ -237,9 +226,8 @@ class GitStore:
         with self._open(key) as repo:
             if repo is None:
                 return None
-            refs: dict[str, str] = {}
-            for name, sha in repo.refs.as_dict(Ref(b"refs/remotes/origin")).items():
-                refs["refs/heads/" + name.decode("utf-8")] = sha.decode("ascii")
+            refs = {"refs/heads/" + name.decode("utf-8"): sha.decode("ascii")
+                    for name, sha in repo.refs.as_dict(Ref(b"refs/remotes/origin")).items()}
             for name in repo.refs.as_dict(Ref(b"refs/tags")):
                 with contextlib.suppress(KeyError):
                     peeled = repo.get_peeled(Ref(b"refs/tags/" + name))
@@ -311,12 +299,7 @@ class GitStore:
         if not dest.exists():
             fresh = self._temp(key, "clone")
             try:
-                with Repo.init(str(fresh)) as repo:
-                    config = repo.get_config()
-                    config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
-                    config.set((b"remote", b"origin"), b"fetch",
-                               b"+refs/heads/*:refs/remotes/origin/*")
-                    config.write_to_path()
+                _init(fresh, url).close()
                 os.rename(fresh, dest)
             except BaseException:
                 shutil.rmtree(fresh, ignore_errors=True)
@@ -457,13 +440,12 @@ class GitStore:
         into place) is the caller's business, since it owns the generation's layout.
         """
         with self._open(key) as repo:
-            found = None if repo is None else _lookup(repo, commit, folder)
-            if repo is None or found is None or not stat.S_ISDIR(found[0]):
+            tree_id = None if repo is None else _folder(repo, commit, folder)
+            if repo is None or tree_id is None:
                 raise RefNotFoundError(
                     f"{key}: there is no folder '{folder}' at commit {commit}",
                     hint="check the app's folder in the app catalog at that commit",
                 )
-            tree_id = found[1]
             self._refuse_oversized(key, repo, commit, tree_id)
             dest.mkdir(parents=True)
             root = os.fsencode(dest)
@@ -522,11 +504,7 @@ class GitStore:
         checkout, for the caller to rename into place; removed again if the fetch fails."""
         fresh = self._temp(key, "clone")
         try:
-            with Repo.init(str(fresh)) as repo:
-                config = repo.get_config()
-                config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
-                config.set((b"remote", b"origin"), b"fetch", b"+refs/heads/*:refs/remotes/origin/*")
-                config.write_to_path()
+            with _init(fresh, url) as repo:
                 self._transport.fetch_into(repo, url, skip=skip)
             integrity.remember(fresh)
         except BaseException:
@@ -590,6 +568,16 @@ class GitStore:
                 shutil.rmtree(leftover, ignore_errors=True)
 
 
+def _init(path: Path, url: str) -> Repo:
+    """A new, empty repository at `path` whose origin is `url`, as `git clone` sets it up."""
+    repo = Repo.init(str(path))
+    config = repo.get_config()
+    config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
+    config.set((b"remote", b"origin"), b"fetch", b"+refs/heads/*:refs/remotes/origin/*")
+    config.write_to_path()
+    return repo
+
+
 def _commit(repo: Repo, commit: str) -> Commit | None:
     if len(commit) != 40 or not is_hex_commit(commit):
         return None
@@ -612,6 +600,12 @@ def _lookup(repo: Repo, commit: str, path: str) -> tuple[int, ObjectID] | None:
         return tree.lookup_path(repo.object_store.__getitem__, clean.encode("utf-8"))
     except (KeyError, NotTreeError, SubmoduleEncountered):
         return None
+
+
+def _folder(repo: Repo, commit: str, folder: str) -> ObjectID | None:
+    """The tree id of `commit:folder`; None when there is no folder there."""
+    found = _lookup(repo, commit, folder)
+    return found[1] if found is not None and stat.S_ISDIR(found[0]) else None
 
 
 def _checkout(repo: Repo, commit: str) -> None:
@@ -736,8 +730,7 @@ def _unsafe_path(repo: Repo, commit: Commit) -> str | None:
 
 def _printable(path: bytes) -> str:
     """`path` for a one-line message: control characters escaped, never interpreted."""
-    text = path.decode("utf-8", "replace")
-    return escaped(text)
+    return escaped(path.decode("utf-8", "replace"))
 
 
 def _edits(repo: Repo) -> list[str]:
@@ -746,8 +739,7 @@ def _edits(repo: Repo) -> list[str]:
     from dulwich import porcelain
 
     if not os.path.exists(repo.index_path()):
-        others = [e for e in os.listdir(repo.path) if e != ".git"]
-        return sorted(others)
+        return sorted(e for e in os.listdir(repo.path) if e != ".git")
     status = porcelain.status(repo, untracked_files="all")
     paths: set[bytes] = set(status.unstaged) | set(status.untracked)
     for changed in status.staged.values():

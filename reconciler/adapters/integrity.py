@@ -82,10 +82,7 @@ def remember(checkout: Path) -> None:
     with large packs (a ROS repository with bag files) must not read them all each time."""
     git = checkout / ".git"
     pack_dir = git / "objects" / "pack"
-    names = set(os.listdir(pack_dir)) if pack_dir.is_dir() else set()
-    stamps = {name: _stamp(pack_dir / name, pack_dir / (name[:-5] + ".idx"))
-              for name in sorted(names)
-              if name.endswith(".pack") and name[:-5] + ".idx" in names}
+    stamps = {f"{stem}.pack": _stamp(pack_dir, stem) for stem in _indexed_packs(pack_dir)}
     with contextlib.suppress(OSError):
         write_atomic(git / VERIFIED, json.dumps(stamps, sort_keys=True) + "\n")
 
@@ -96,18 +93,15 @@ def _packs(git: Path) -> str | None:
     rewritten, changes them; what changes neither (a bit flipped in place) is found when a
     read of it fails."""
     pack_dir = git / "objects" / "pack"
-    names = set(os.listdir(pack_dir)) if pack_dir.is_dir() else set()
     known = _verified(git)
-    for name in sorted(names):
-        if not name.endswith(".pack") or name[:-5] + ".idx" not in names:
-            continue  # a pack still being written has no index yet; dulwich ignores it
-        where = f"objects/pack/{name}"
-        stamp = _stamp(pack_dir / name, pack_dir / (name[:-5] + ".idx"))
-        index = _index_trailer(pack_dir / (name[:-5] + ".idx"))
+    for stem in _indexed_packs(pack_dir):
+        where = f"objects/pack/{stem}.pack"
+        stamp = _stamp(pack_dir, stem)
+        index = _index_trailer(pack_dir / f"{stem}.idx")
         if isinstance(index, str):
-            return f"objects/pack/{name[:-5]}.idx {index}"
-        pack = _pack_end(pack_dir / name) if known.get(name) == stamp else \
-            _pack_trailer(pack_dir / name)
+            return f"objects/pack/{stem}.idx {index}"
+        path = pack_dir / f"{stem}.pack"
+        pack = _pack_end(path) if known.get(path.name) == stamp else _pack_trailer(path)
         if isinstance(pack, str):
             return f"{where} {pack}"
         if index != pack:
@@ -116,8 +110,16 @@ def _packs(git: Path) -> str | None:
     return None
 
 
-def _stamp(pack: Path, index: Path) -> list[int]:
-    a, b = pack.stat(), index.stat()
+def _indexed_packs(pack_dir: Path) -> list[str]:
+    """The names (without `.pack`) of the packs that have their index, sorted: a pack still
+    being written has no index yet, and dulwich ignores it."""
+    names = set(os.listdir(pack_dir)) if pack_dir.is_dir() else set()
+    return [name[:-5] for name in sorted(names)
+            if name.endswith(".pack") and name[:-5] + ".idx" in names]
+
+
+def _stamp(pack_dir: Path, stem: str) -> list[int]:
+    a, b = (pack_dir / f"{stem}.pack").stat(), (pack_dir / f"{stem}.idx").stat()
     return [a.st_size, a.st_mtime_ns, b.st_size, b.st_mtime_ns]
 
 

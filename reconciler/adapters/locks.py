@@ -103,28 +103,21 @@ class LockLine:
 
 def parse_proc_locks(text: str) -> list[LockLine]:
     """The lines of /proc/locks that name a file (lines with `<none>` do not)."""
-    lines = []
-    for line in text.splitlines():
-        match = _LOCK_LINE.match(line + " ")
-        if match is None:
-            continue
-        lines.append(LockLine(
-            kind=match["kind"], access=match["access"], pid=int(match["pid"]),
-            major=int(match["major"], 16), minor=int(match["minor"], 16),
-            inode=int(match["inode"]), waiting=match["waiter"] is not None))
-    return lines
+    matches = (_LOCK_LINE.match(line + " ") for line in text.splitlines())
+    return [LockLine(kind=match["kind"], access=match["access"], pid=int(match["pid"]),
+                     major=int(match["major"], 16), minor=int(match["minor"], 16),
+                     inode=int(match["inode"]), waiting=match["waiter"] is not None)
+            for match in matches if match is not None]
 
 
 def flock_holders(text: str, *, major: int, minor: int, inode: int) -> tuple[int, ...]:
     """The pids holding an flock on the file (device `major:minor`, `inode`), each once,
     from the text of /proc/locks. POSIX and OFD locks are left out: on Linux they do not
     conflict with flock, so they never keep lpam's lock from being taken."""
-    pids: dict[int, None] = {}
-    for line in parse_proc_locks(text):
+    return tuple(dict.fromkeys(
+        line.pid for line in parse_proc_locks(text)
         if (line.kind == "FLOCK" and not line.waiting and line.inode == inode
-                and line.major == major and line.minor == minor):
-            pids[line.pid] = None
-    return tuple(pids)
+            and line.major == major and line.minor == minor)))
 
 
 def holders(path: Path, *, proc: Path = PROC) -> tuple[Holder, ...]:

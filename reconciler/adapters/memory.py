@@ -137,10 +137,15 @@ class MemoryStore:
             raise ambiguous(key, ref, commits)
         return commits[0] if commits else None
 
-    def folder_tree(self, key: str, commit: str, folder: str) -> str | None:
+    def _folder(self, key: str, commit: str, folder: str) -> Folder | None:
+        """`commit:folder` of the key's origin, once that commit was fetched."""
         url = self.origin_url(key)
         found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
-        return None if found is None or not self.has_commit(key, commit) else found[0]
+        return None if found is None or not self.has_commit(key, commit) else found
+
+    def folder_tree(self, key: str, commit: str, folder: str) -> str | None:
+        found = self._folder(key, commit, folder)
+        return None if found is None else found[0]
 
     def location(self, key: str) -> Path:
         return self.layout.repository_dir(key) if self.layout is not None else Path(key)
@@ -164,10 +169,9 @@ class MemoryStore:
                   limit: int = READ_LIMIT) -> bytes | None:
         """A file of a folder (`folder/name`, a top-level file in folder ""); GitError when
         it is larger than `limit`, as the real store."""
-        url = self.origin_url(key)
         folder, _, name = path.rpartition("/")
-        found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
-        if found is None or not self.has_commit(key, commit) or name not in found[1]:
+        found = self._folder(key, commit, folder)
+        if found is None or name not in found[1]:
             return None
         data = found[1][name].encode("utf-8")
         if len(data) > limit:
@@ -175,17 +179,15 @@ class MemoryStore:
         return data
 
     def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
-        url = self.origin_url(key)
-        found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
-        if found is None or not self.has_commit(key, commit):
+        found = self._folder(key, commit, folder)
+        if found is None:
             return None
         return {name: blob_id(text.encode("utf-8")) for name, text in found[1].items()}
 
     def export_folder(self, key: str, commit: str, folder: str, dest: Path) -> str:
         self._readable(key)
-        url = self.origin_url(key)
-        found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
-        if found is None or not self.has_commit(key, commit):
+        found = self._folder(key, commit, folder)
+        if found is None:
             raise RefNotFoundError(f"{key}: there is no folder '{folder}' at commit {commit}")
         tree, files = found
         dest.mkdir(parents=True)

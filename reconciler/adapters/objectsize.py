@@ -91,14 +91,10 @@ def _inflate_head(read: Callable[[int], bytes]) -> bytes:
 def _entry_size(head: bytes) -> tuple[int, int]:
     """A pack entry's inflated size and where its header ends: 4 bits after the type, then
     little-endian groups of 7 bits while the high bit says another byte follows."""
-    byte = head[0]
-    value, shift, at = byte & 0x0F, 4, 1
-    while byte & 0x80:
-        byte = head[at]
-        value |= (byte & 0x7F) << shift
-        shift += 7
-        at += 1
-    return value, at
+    if not head[0] & 0x80:
+        return head[0] & 0x0F, 1
+    rest, at = _delta_varint(head, 1)
+    return head[0] & 0x0F | rest << 4, at
 
 
 def _delta_varint(data: bytes, at: int) -> tuple[int, int]:

@@ -120,9 +120,8 @@ def lpam_has_pip() -> bool:
 
 
 def _default_python() -> str:
-    if os.path.exists("/usr/bin/python3"):
-        return "/usr/bin/python3"
-    return shutil.which("python3") or "python3"
+    return "/usr/bin/python3" if os.path.exists("/usr/bin/python3") else \
+        shutil.which("python3") or "python3"
 
 
 class VenvPythonEnvs:
@@ -162,13 +161,10 @@ class VenvPythonEnvs:
             if own_pip:
                 venv.insert(4, "--without-pip")
             self.base.mkdir(parents=True, exist_ok=True)
-            code, tail = _run(venv, log=log, deadline=deadline)
-            if code != 0:
-                raise DependencyError(
-                    f"cannot create the Python environment {env}: {_cause(tail, code)}",
-                    details=tail, hint=f"check that {self.python} can run `-m venv` "
-                    "(Debian: the python3-venv package)",
-                )
+            _run(venv, log=log, deadline=deadline,
+                 failed=f"cannot create the Python environment {env}",
+                 hint=f"check that {self.python} can run `-m venv` (Debian: the python3-venv "
+                 "package)")
         missing = lacking(requirements, _sys_path(_env_python(env)))
         if missing:
             self._install(env, missing, own_pip=own_pip, log=log, deadline=deadline)
@@ -184,12 +180,8 @@ class VenvPythonEnvs:
         pip = [sys.executable, "-m", "pip", "--python", str(_env_python(env))] if own_pip \
             else [str(_env_python(env)), "-m", "pip"]
         argv = [*pip, "install", "--disable-pip-version-check", "--no-input", *missing]
-        code, tail = _run(argv, log=log, deadline=deadline)
-        if code != 0:
-            raise DependencyError(
-                f"pip could not install {', '.join(missing)}: {_cause(tail, code)}",
-                details=tail, hint=PIP_HINT,
-            )
+        _run(argv, log=log, deadline=deadline,
+             failed=f"pip could not install {', '.join(missing)}", hint=PIP_HINT)
 
     def collect(self, keep: set[Path]) -> None:
         """Remove the environments not in `keep`. Only folders named like an environment
@@ -230,10 +222,14 @@ def _sys_path(python: str | Path) -> list[str]:
     return [path for path in paths if isinstance(path, str) and os.path.isabs(path)]
 
 
-def _run(argv: list[str], *, log: Log, deadline: float) -> tuple[int, list[str]]:
-    """(exit code, last lines); -9 when the command was killed at the deadline."""
+def _run(argv: list[str], *, log: Log, deadline: float, failed: str, hint: str) -> None:
+    """Run `argv`; DependencyError `failed: why` when it fails (exit code -9 when it was
+    killed at the deadline)."""
     outcome = run_streamed(argv, log=log, deadline=deadline)
-    return (-9 if outcome.code is None else outcome.code), outcome.tail
+    code = -9 if outcome.code is None else outcome.code
+    if code != 0:
+        raise DependencyError(f"{failed}: {_cause(outcome.tail, code)}", details=outcome.tail,
+                              hint=hint)
 
 
 def _remove(env: Path) -> None:

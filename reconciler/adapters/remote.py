@@ -46,7 +46,31 @@ class Transport:
         """Refuse, before anything is read or written, a URL dulwich would misparse or crash
         on, and a local path that is not a directory (a FIFO or /dev/zero would be read
         forever); `action` completes "cannot … URL" in the message."""
-        _check_url(url, action)
+        parsed = urlparse(url)
+        if "://" in url:
+            if parsed.scheme not in _SCHEMES or (parsed.scheme != "file" and not parsed.hostname):
+                raise GitError(redact(f"'{url}' is not a git URL lpam can use"),
+                               hint=_NETWORK_HINT)
+            if parsed.scheme != "file":
+                return
+            path = parsed.path
+        elif not os.path.isabs(url):
+            raise GitError(
+                redact(f"'{url}' is neither a URL nor an absolute path"),
+                hint="use an https://, git://, ssh:// or file:// URL, or an absolute path",
+            )
+        else:
+            path = url
+        try:
+            mode = os.stat(path).st_mode
+        except OSError as exc:
+            message = redact(f"cannot {action} {url}: {exc.strerror}")
+            raise GitError(message, hint=_NETWORK_HINT) from None
+        if not stat.S_ISDIR(mode):
+            raise GitError(
+                redact(f"cannot {action} {url}: it is not a directory, so not a git repository"),
+                hint="a local url: names the directory of a git repository",
+            )
 
     def ls_remote(self, url: str) -> RemoteRefs:
         action = "list the branches and tags of"
@@ -131,33 +155,6 @@ class Transport:
         if "error" in answer:
             raise failed(str(answer["error"]))
         return answer
-
-
-def _check_url(url: str, action: str) -> None:
-    parsed = urlparse(url)
-    if "://" in url:
-        if parsed.scheme not in _SCHEMES or (parsed.scheme != "file" and not parsed.hostname):
-            raise GitError(redact(f"'{url}' is not a git URL lpam can use"), hint=_NETWORK_HINT)
-        if parsed.scheme != "file":
-            return
-        path = parsed.path
-    elif not os.path.isabs(url):
-        raise GitError(
-            redact(f"'{url}' is neither a URL nor an absolute path"),
-            hint="use an https://, git://, ssh:// or file:// URL, or an absolute path",
-        )
-    else:
-        path = url
-    try:
-        mode = os.stat(path).st_mode
-    except OSError as exc:
-        message = redact(f"cannot {action} {url}: {exc.strerror}")
-        raise GitError(message, hint=_NETWORK_HINT) from None
-    if not stat.S_ISDIR(mode):
-        raise GitError(
-            redact(f"cannot {action} {url}: it is not a directory, so not a git repository"),
-            hint="a local url: names the directory of a git repository",
-        )
 
 
 def _under(refs: dict[bytes, bytes], prefix: bytes) -> dict[Ref, ObjectID]:

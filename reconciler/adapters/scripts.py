@@ -80,18 +80,12 @@ class ScriptRunner:
         result = self.runs / f"{run}.exit"
         fd = "" if self.lock_fd is None else str(self.lock_fd)
         self._note(f"== {app}: bash {script} (in {app_dir})\n")
-        out = open_append(self.log)
         try:
-            proc = subprocess.Popen(
-                ["bash", "-c", GUARD, "lpam-guard", str(result), fd, "bash", script],
-                cwd=app_dir, env=env, stdin=subprocess.DEVNULL, stdout=out,
-                stderr=subprocess.STDOUT, start_new_session=True,
-                pass_fds=() if self.lock_fd is None else (self.lock_fd,),
-            )
+            proc = self._spawn(
+                ["bash", "-c", GUARD, "lpam-guard", str(result), fd, "bash", script], app_dir,
+                env, pass_fds=() if self.lock_fd is None else (self.lock_fd,))
         except OSError as exc:
             raise StepError(f"{app}: cannot run {script}: {exc.strerror}") from None
-        finally:
-            os.close(out)
         if self.note is not None:
             self.note(f"running {app} {script} in process group {proc.pid}")
         try:
@@ -115,9 +109,20 @@ class ScriptRunner:
             )
         return True
 
+    def _spawn(self, argv: list[str], app_dir: Path, env: dict[str, str], *,
+               pass_fds: tuple[int, ...] = ()) -> subprocess.Popen[bytes]:
+        """`argv` in the app's folder, in its own process group, its output appended to
+        the log."""
+        out = open_append(self.log)
+        try:
+            return subprocess.Popen(
+                argv, cwd=app_dir, env=env, stdin=subprocess.DEVNULL, stdout=out,
+                stderr=subprocess.STDOUT, start_new_session=True, pass_fds=pass_fds)
+        finally:
+            os.close(out)
+
     def _env(self, app: str, app_dir: Path, params: dict[str, str]) -> dict[str, str]:
-        env = {k: os.environ[k] for k in PASSED_THROUGH if k in os.environ}
-        env.setdefault("PATH", DEFAULT_PATH)
+        env = passed_through()
         env.update(params)
         env.update(LPAM_ROOT=str(self.root), LPAM_APP=app, LPAM_APP_DIR=str(app_dir))
         # The folder is a link to the generation: `$PWD` names the link, as after `cd`
@@ -132,17 +137,10 @@ class ScriptRunner:
         """Run a health check (an argument list, in the app's folder, with its parameters);
         its output goes to the apply log. A check over `timeout` is killed with its group."""
         self._note(f"== {app}: health check {argv!r} (in {app_dir})\n")
-        out = open_append(self.log)
         try:
-            proc = subprocess.Popen(
-                argv, cwd=app_dir, env=self._env(app, app_dir, params),
-                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                start_new_session=True,
-            )
+            proc = self._spawn(argv, app_dir, self._env(app, app_dir, params))
         except OSError as exc:
             return False, f"cannot run it: {exc.strerror}"
-        finally:
-            os.close(out)
         try:
             code = proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
@@ -159,6 +157,13 @@ class ScriptRunner:
             os.write(fd, text.encode())
         finally:
             os.close(fd)
+
+
+def passed_through() -> dict[str, str]:
+    """The variables of lpam's environment a script or a supervisord gets, PATH at least."""
+    env = {k: os.environ[k] for k in PASSED_THROUGH if k in os.environ}
+    env.setdefault("PATH", DEFAULT_PATH)
+    return env
 
 
 def stop_group(proc: subprocess.Popen[bytes]) -> None:

@@ -89,15 +89,12 @@ def fetch(url: str, repo_path: str, skip: str = "") -> dict[str, Any]:
     such as the fleet's status branches); refs stay untouched."""
     client, path = client_for(url)
     skipped = skip.encode("utf-8")
-
-    def kept(name: bytes) -> bool:
-        return _is_tip(name) and not (skipped and name.startswith(skipped))
-
     with Repo(repo_path) as repo:
         durable(repo)
 
         def wanted(refs: Mapping[Ref, ObjectID | None], depth: int | None = None) -> list[ObjectID]:
-            tips = [sha for name, sha in refs.items() if kept(name) and sha is not None]
+            tips = [sha for name, sha in refs.items() if sha is not None and _is_tip(name)
+                    and not (skipped and name.startswith(skipped))]
             return [sha for sha in dict.fromkeys(tips) if sha not in repo.object_store]
 
         result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)

@@ -43,7 +43,6 @@ INVALID_ARGS = "org.freedesktop.DBus.Error.InvalidArgs"
 UNKNOWN_METHOD = "org.freedesktop.DBus.Error.UnknownMethod"
 FAILED = "org.bluez.Error.Failed"
 NOT_PERMITTED = "org.bluez.Error.NotPermitted"
-NOT_SUPPORTED = "org.bluez.Error.NotSupported"
 
 
 class GattHandler(Protocol):

@@ -44,6 +44,10 @@ LEAVE_TIMEOUT = 2.0  # per Unregister* call on stop: bluetoothd may be hung or g
 
 APPLICATION = "GATT application"
 ADVERTISING = "advertisement"
+# What is registered, in order: its manager on the adapter, the name in its methods
+# (RegisterApplication, UnregisterApplication…) and the object registered.
+_REGISTRATIONS = {APPLICATION: (GATT_MANAGER, "Application", ROOT),
+                  ADVERTISING: (ADVERTISING_MANAGER, "Advertisement", ADVERTISEMENT)}
 
 T = TypeVar("T")
 
@@ -149,16 +153,13 @@ class GattServer:
             gone.cancel()
 
     def _missing(self) -> list[str]:
-        return [w for w in (APPLICATION, ADVERTISING) if w not in self._registered]
+        return [w for w in _REGISTRATIONS if w not in self._registered]
 
     async def _register(self, bus: MessageBus, stop: asyncio.Event) -> bool:
         """Register what bluetoothd does not have; False (reason logged) on a failure."""
         for what in self._missing():
-            if what == APPLICATION:
-                call = self._adapter_call(GATT_MANAGER, "RegisterApplication", ROOT)
-            else:
-                call = self._adapter_call(ADVERTISING_MANAGER, "RegisterAdvertisement",
-                                          ADVERTISEMENT)
+            manager, kind, path = _REGISTRATIONS[what]
+            call = self._adapter_call(manager, "Register" + kind, path)
             error = await _call(bus, call, stop, CALL_TIMEOUT)
             if stop.is_set():
                 return False
@@ -174,14 +175,9 @@ class GattServer:
     async def _leave(self, bus: MessageBus) -> None:
         """Unregister what was registered, then close the connection."""
         self._bus = None
-        for what in reversed([w for w in (APPLICATION, ADVERTISING)
-                              if w in self._registered]):
-            if what == APPLICATION:
-                call = self._adapter_call(GATT_MANAGER, "UnregisterApplication", ROOT,
-                                          options=False)
-            else:
-                call = self._adapter_call(ADVERTISING_MANAGER, "UnregisterAdvertisement",
-                                          ADVERTISEMENT, options=False)
+        for what in reversed([w for w in _REGISTRATIONS if w in self._registered]):
+            manager, kind, path = _REGISTRATIONS[what]
+            call = self._adapter_call(manager, "Unregister" + kind, path, options=False)
             if bus.connected and self._bluez is not None:  # else gone with the bus or it
                 await _call(bus, call, asyncio.Event(), LEAVE_TIMEOUT)  # errors ignored
         self._registered.clear()

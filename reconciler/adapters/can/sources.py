@@ -230,16 +230,13 @@ def _open_log(path: Path) -> FileSource | RecordedSource:
 
     try:
         can.LogReader(path).stop()
-    except ValueError as exc:
-        if "unknown log format" not in str(exc):
-            raise VehicleSourceError(f"log {path}: python-can cannot read it: {_line(exc)}",
-                                     hint="check that the file is a complete log") from None
-        kinds = ", ".join(sorted(can.io.MESSAGE_READERS))
-        raise VehicleSourceError(
-            f"log {path}: python-can reads no {path.suffix or 'suffix-less'} files",
-            hint=f"give a log ending in one of {kinds} (a candump log ends in .log), or "
-                 "follow: a libpanda CSV") from None
-    except Exception as exc:  # a reader that trips on the file's header
+    except Exception as exc:  # also a reader that trips on the file's header
+        if isinstance(exc, ValueError) and "unknown log format" in str(exc):
+            kinds = ", ".join(sorted(can.io.MESSAGE_READERS))
+            raise VehicleSourceError(
+                f"log {path}: python-can reads no {path.suffix or 'suffix-less'} files",
+                hint=f"give a log ending in one of {kinds} (a candump log ends in .log), or "
+                     "follow: a libpanda CSV") from None
         raise VehicleSourceError(f"log {path}: python-can cannot read it: {_line(exc)}",
                                  hint="check that the file is a complete log") from None
     return RecordedSource(path)

@@ -36,48 +36,37 @@ def agent_units(lpam: list[str], config: str | None = None) -> dict[str, str]:
     """Unit name (without `.service`) → file text; `lpam` is the command that runs lpam
     (an absolute program), `config` an agent.yaml other than the root's."""
     options = [] if config is None else ["--config", config]
-    agent = [
-        HEADER,
-        "[Unit]",
-        "Description=lpam agent: this vehicle follows its desired-state repository",
-        "Wants=network-online.target",
-        "After=network-online.target",
-        "",
-        *_long_running([*lpam, "agent", *options], restart_seconds=30),
-    ]
-    fetch = [
-        HEADER,
-        "[Unit]",
-        "Description=lpam: fetch the desired state at shutdown, to apply at the next start",
-        "Wants=network-online.target",
-        "After=network-online.target",
-        "",
-        "[Service]",
-        "Type=oneshot",
-        "RemainAfterExit=yes",
-        "ExecStart=/bin/true",
-        f"ExecStop={exec_line([*lpam, 'sync', '--fetch-only', *options])}",
-        f"TimeoutStopSec={FETCH_SECONDS}s",
-        "",
-        "[Install]",
-        "WantedBy=multi-user.target",
-    ]
-    return {AGENT: "\n".join(agent) + "\n", FETCH: "\n".join(fetch) + "\n"}
+    online = ["Wants=network-online.target", "After=network-online.target"]
+    agent = _file("lpam agent: this vehicle follows its desired-state repository", online,
+                  _long_running([*lpam, "agent", *options], restart_seconds=30))
+    fetch = _file("lpam: fetch the desired state at shutdown, to apply at the next start",
+                  online, [
+                      "[Service]",
+                      "Type=oneshot",
+                      "RemainAfterExit=yes",
+                      "ExecStart=/bin/true",
+                      f"ExecStop={exec_line([*lpam, 'sync', '--fetch-only', *options])}",
+                      f"TimeoutStopSec={FETCH_SECONDS}s",
+                      "",
+                      "[Install]",
+                      "WantedBy=multi-user.target",
+                  ])
+    return {AGENT: agent, FETCH: fetch}
 
 
 def ble_unit(lpam: list[str]) -> dict[str, str]:
     """Unit name → file text of `lpam ble` (see the module docstring)."""
-    ble = [
-        HEADER,
-        "[Unit]",
-        "Description=lpam ble: the phone app's (Privzone) Bluetooth service",
-        "Wants=bluetooth.service",
-        "After=bluetooth.service dbus.service",
-        f"Conflicts={BLUEZONE}",
-        "",
-        *_long_running([*lpam, "ble"], restart_seconds=5),
-    ]
-    return {BLE: "\n".join(ble) + "\n"}
+    return {BLE: _file(
+        "lpam ble: the phone app's (Privzone) Bluetooth service",
+        ["Wants=bluetooth.service", "After=bluetooth.service dbus.service",
+         f"Conflicts={BLUEZONE}"],
+        _long_running([*lpam, "ble"], restart_seconds=5))}
+
+
+def _file(description: str, unit: list[str], rest: list[str]) -> str:
+    """A unit file of lpam's: the header line, `[Unit]` with `description` and the `unit`
+    lines, then the `rest` of the sections."""
+    return "\n".join([HEADER, "[Unit]", f"Description={description}", *unit, "", *rest]) + "\n"
 
 
 def _long_running(command: list[str], *, restart_seconds: int) -> list[str]:

@@ -106,7 +106,7 @@ class SupervisorServices:
         name = _program(unit.name)
         self._section(unit, name)
         if unit.user is not None:
-            _user_exists(name, unit.user)
+            _uid(name, unit.user)
 
     def _section(self, unit: Unit, name: str) -> str:
         """The program's section, its processes marked as this root's (orphans.py)."""
@@ -125,8 +125,8 @@ class SupervisorServices:
         log = Path(os.path.abspath(unit.log or self.layout.app_logs / f"{name}.log"))
         text = self._section(unit, name)
         if unit.user is not None:
-            _user_exists(name, unit.user)
-        client = self._ensure()
+            _uid(name, unit.user)
+        client = ensure(self.layout)
         if unit.user is not None:
             check_user(name, unit.user, manager_uid=os.stat(client.path).st_uid)
         log.parent.mkdir(parents=True, exist_ok=True)
@@ -149,7 +149,7 @@ class SupervisorServices:
 
     def uninstall(self, name: str) -> None:
         program = _program(name)
-        client = self._connect()
+        client = connect(self.layout)
         if client is not None:
             self._stop(client, program)
         self._end_orphans(program)
@@ -171,7 +171,7 @@ class SupervisorServices:
 
     def start(self, name: str) -> None:
         program = _program(name)
-        client = self._ensure()
+        client = ensure(self.layout)
         try:
             self._update(client, program, _reload(client))
             state = self._settled(client, program)
@@ -202,7 +202,7 @@ class SupervisorServices:
         """Stop it if it runs. A unit supervisord does not know is not running under it,
         which is all `stop` promises, so that is not an error."""
         program = _program(name)
-        client = self._connect()
+        client = connect(self.layout)
         if client is not None:
             self._stop(client, program)
         self._end_orphans(program)
@@ -218,7 +218,7 @@ class SupervisorServices:
             program = check_unit_name(name)
         except ValueError:
             return UnitState(name=name, known=False)
-        client = self._connect()
+        client = connect(self.layout)
         try:
             info = None if client is None else client.call("getProcessInfo", program)
         except xmlrpc.client.Fault as exc:
@@ -266,12 +266,6 @@ class SupervisorServices:
                                "left running do not end, even when killed",
                                hint="see `ps -o pid,stat,cmd -p PID`; lpam starts no second "
                                "copy beside them")
-
-    def _connect(self) -> Client | None:
-        return connect(self.layout)
-
-    def _ensure(self) -> Client:
-        return ensure(self.layout)
 
     def _setting(self, program: str, key: str) -> str | None:
         try:
@@ -401,9 +395,10 @@ def _failed(program: str, doing: str, exc: xmlrpc.client.Fault, why: str = "") \
                         hint="see `lpam logs` and the supervisord log under var/log/lpam")
 
 
-def _user_exists(unit: str, user: str) -> None:
+def _uid(unit: str, user: str) -> int:
+    """The uid of `user` (a name or a number); ServiceError when it does not exist."""
     try:
-        pwd.getpwuid(int(user)) if user.isdigit() else pwd.getpwnam(user)
+        return pwd.getpwuid(int(user)).pw_uid if user.isdigit() else pwd.getpwnam(user).pw_uid
     except KeyError:
         raise ServiceError(f"unit {unit}: user {user!r} does not exist on this machine",
                            hint="create the user or change the app's `user`") from None
@@ -411,8 +406,7 @@ def _user_exists(unit: str, user: str) -> None:
 
 def check_user(unit: str, user: str, *, manager_uid: int) -> None:
     """supervisord switches to another user only when it runs as root."""
-    _user_exists(unit, user)
-    uid = int(user) if user.isdigit() else pwd.getpwnam(user).pw_uid
+    uid = _uid(unit, user)
     if manager_uid != 0 and uid != manager_uid:
         raise ServiceError(
             f"unit {unit}: cannot run as user {user!r}: supervisord runs as uid "
@@ -449,10 +443,8 @@ def _read_from(path: Path, offset: int) -> str:
 def tail(path: Path, lines: int) -> list[str]:
     """The last `lines` lines of `path`, read backwards from its end (at most READ_LIMIT
     bytes), without their line ends. A missing file has no lines."""
-    fd = _open_regular(path)
-    if fd is None or lines == 0:
-        if fd is not None:
-            os.close(fd)
+    fd = None if lines == 0 else _open_regular(path)
+    if fd is None:
         return []
     try:
         end = os.fstat(fd).st_size

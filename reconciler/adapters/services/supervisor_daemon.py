@@ -32,14 +32,13 @@ from typing import Any
 
 from supervisor.xmlrpc import Faults, SupervisorTransport  # type: ignore[import-untyped]
 
-from reconciler.adapters.scripts import PASSED_THROUGH
+from reconciler.adapters.scripts import passed_through
 from reconciler.adapters.services import orphans, supervisor_conf
 from reconciler.base.atomic import write_atomic
 from reconciler.base.errors import ServiceError
 from reconciler.base.flock import wait_exclusive
 from reconciler.base.layout import Layout
 from reconciler.base.process import alive
-from reconciler.engine.execution.ports import DEFAULT_PATH
 
 CALL_TIMEOUT = 10.0  # an answer to a question; starting and stopping get their own bound
 LAUNCH_TIMEOUT = 10.0  # from launching supervisord to its first answer
@@ -138,14 +137,6 @@ def connect(layout: Layout) -> Client | None:
     return client
 
 
-def _environment() -> dict[str, str]:
-    """supervisord's environment, which every app inherits: small and explicit, as
-    systemd gives a unit (the app's own variables come from its definition)."""
-    env = {k: os.environ[k] for k in PASSED_THROUGH if k in os.environ}
-    env.setdefault("PATH", DEFAULT_PATH)
-    return env
-
-
 def _supervisord_argv(conf: str) -> list[str]:
     """The `supervisord` script of this Python, else supervisor's main run by this Python
     from where lpam imports it (which may be a PYTHONPATH that supervisord, and so every
@@ -191,10 +182,12 @@ def _launch(layout: Layout) -> Client:
     hint = f"see {layout.supervisor_log} and {conf}"
     try:
         # The parent exits once the socket is bound and the daemon has forked; errors
-        # (a bad configuration, a socket in use) come before that, on its output.
+        # (a bad configuration, a socket in use) come before that, on its output. Every
+        # app inherits supervisord's environment: small and explicit, as systemd gives a
+        # unit (the app's own variables come from its definition).
         done = subprocess.run(
             _supervisord_argv(conf), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT, env=_environment(), cwd=layout.run_dir,
+            stderr=subprocess.STDOUT, env=passed_through(), cwd=layout.run_dir,
             timeout=LAUNCH_TIMEOUT, check=False,
         )
     except subprocess.TimeoutExpired:

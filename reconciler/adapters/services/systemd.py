@@ -101,25 +101,13 @@ class SystemdServices:
             ) from None
 
     def install(self, unit: Unit) -> None:
-        name = _unit(unit.name)
-        text = self._render(unit)
-        path = self.unit_file(unit.name)
-        changed = self._ours(path) != text.encode("utf-8")
-        if changed:
-            write_atomic(path, text)
-        if changed or self._stale(name):
-            self._systemctl("daemon-reload", unit=name)
-        self._systemctl("--no-reload", "enable", "--", name, unit=name)
+        self._put(_unit(unit.name), self._render(unit))
 
     def install_text(self, name: str, text: str, *, start: bool = False) -> None:
         """Install a unit lpam wrote itself that is not an app's (the agent's), enabled,
         and started when `start`."""
         unit = _unit(name)
-        path = self.layout.systemd_units / unit
-        if self._ours(path) != text.encode("utf-8"):
-            write_atomic(path, text)
-        self._systemctl("daemon-reload", unit=unit)
-        self._systemctl("--no-reload", "enable", "--", unit, unit=unit)
+        self._put(unit, text, reload=True)
         if start:
             self._systemctl("start", "--", unit, unit=unit)
 
@@ -176,6 +164,17 @@ class SystemdServices:
         return out.splitlines()
 
     # -- helpers ----------------------------------------------------------------------
+
+    def _put(self, unit: str, text: str, *, reload: bool = False) -> None:
+        """Write the file of `unit` when it differs from `text`, have systemd reload when
+        it changed or its loaded copy is stale (always with `reload`), and enable it."""
+        path = self.layout.systemd_units / unit
+        changed = self._ours(path) != text.encode("utf-8")
+        if changed:
+            write_atomic(path, text)
+        if reload or changed or self._stale(unit):
+            self._systemctl("daemon-reload", unit=unit)
+        self._systemctl("--no-reload", "enable", "--", unit, unit=unit)
 
     def unit_file(self, name: str) -> Path:
         """Where the unit `name` (with or without `.service`) is written."""
