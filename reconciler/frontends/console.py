@@ -15,7 +15,6 @@ import os
 import sys
 import traceback
 from collections.abc import Callable
-from datetime import datetime, timezone
 from typing import TypeVar
 
 from reconciler import __version__
@@ -23,15 +22,11 @@ from reconciler.base.errors import LpamError, Terminated
 from reconciler.base.layout import Layout
 from reconciler.base.text import printable
 from reconciler.workflow.events import Event
+from reconciler.workflow.machine import now
 
 T = TypeVar("T")
 
 EXIT_BUG, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 130, 143  # 128 + SIGINT, 128 + SIGTERM
-
-
-def now() -> datetime:
-    return datetime.now(timezone.utc)
-
 
 def terminate(signum: int, frame: object) -> None:
     """SIGTERM as an exception raised where lpam stands (reconciler/base/errors.py)."""

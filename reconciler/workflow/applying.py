@@ -155,12 +155,11 @@ def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOpt
     from reconciler.workflow.gates import governing
 
     gates = governing(machine, None)
-    gate, listener = gates.gate, gates.listener
     with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         record = read_record(machine.layout)
         check_plan(saved, lineage=record.lineage, serial=record.serial, source=source)
         return execute_plan(machine, machine.store(), saved, lock, options=options,
-                            report=report, gate=gate, listener=listener)
+                            report=report, gate=gates.gate, listener=gates.listener)
 
 
 def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,

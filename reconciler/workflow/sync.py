@@ -43,16 +43,12 @@ from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.followed import Followed as Followed
-from reconciler.workflow.followed import applied_desired as applied_desired
 from reconciler.workflow.followed import desired_of as _desired
 from reconciler.workflow.followed import followed as followed
 from reconciler.workflow.followed import read_status as read_status
 from reconciler.workflow.followed import vehicle_id as vehicle_id
 from reconciler.workflow.machine import Machine
-from reconciler.workflow.source import (
-    SOURCE_KEY,
-    DesiredStateSource,
-)
+from reconciler.workflow.source import SOURCE_KEY, DesiredStateSource
 from reconciler.workflow.source import join_url as join_url
 from schemas.agent import (
     PASSES_KEPT,
@@ -68,7 +64,6 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from schemas.override import LocalOverride
-
 
 
 @dataclass(frozen=True)
@@ -302,28 +297,24 @@ class Remote:
 
     def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
               lock_timeout: float) -> str | None:
-        return _fetch(machine, config, report, lock_timeout=lock_timeout)
+        """Fetch the source under the lock (a fetch is a write); the reason when offline."""
+        from reconciler.engine.execution.lock import apply_lock
+        from reconciler.engine.observe.targets import sound_copy
 
-
-def _fetch(machine: Machine, config: AgentConfig, report: Report, *,
-           lock_timeout: float) -> str | None:
-    """Fetch the source under the lock (a fetch is a write); the reason when offline."""
-    from reconciler.engine.execution.lock import apply_lock
-    from reconciler.engine.observe.targets import sound_copy
-
-    try:
-        with apply_lock(machine.layout, timeout=lock_timeout):
-            store = machine.store()
-            sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
-                       notice=lambda text: report(Note(text)))
-            # the other cars' status branches are not this car's business
-            store.fetch(SOURCE_KEY, config.source.url, skip="refs/heads/" + STATUS_PREFIX)
-    except StoreDamagedError:
-        raise  # its copy cannot be read: `_pass` records the pass as offline
-    except GitError as exc:
-        report(Note(f"offline: {exc.message}"))
-        return exc.message
-    return None
+        try:
+            with apply_lock(machine.layout, timeout=lock_timeout):
+                store = machine.store()
+                sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
+                           notice=lambda text: report(Note(text)))
+                # the other cars' status branches are not this car's business
+                store.fetch(SOURCE_KEY, config.source.url,
+                            skip="refs/heads/" + STATUS_PREFIX)
+        except StoreDamagedError:
+            raise  # its copy cannot be read: `_pass` records the pass as offline
+        except GitError as exc:
+            report(Note(f"offline: {exc.message}"))
+            return exc.message
+        return None
 
 
 def _tip(machine: Machine, config: AgentConfig) -> str | None:
