@@ -61,6 +61,7 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
     runs; nothing changes when it is declined. `local`: use no network, resolving refs as
     the last fetch (or an unpacked bundle) left them; refused if anything is not local.
     `places`: each desired app's (line, column) in `path`, as `plan` takes them."""
+    from reconciler.core.planning.holds import desired_ref
     from reconciler.core.planning.plan import unknown_values
     from reconciler.engine.execution.lock import apply_lock
     from reconciler.engine.observe.targets import Fetch
@@ -85,7 +86,7 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
         return execute_plan(machine, store, made, lock, options=options, report=report,
                             gate=machine.gate_for(desired, base),
                             listener=machine.listener_for(desired, base),
-                            desired=desired_ref(desired, path))
+                            desired=desired_ref(desired, str(path)))
 
 
 def apply_file(machine: Machine, path: Path, *, options: ApplyOptions,
@@ -118,13 +119,6 @@ def _end_override(machine: Machine, options: ApplyOptions, report: Report) -> Fo
         if override.end(machine, report) is None:
             return None
     return applied_desired(machine)
-
-
-def desired_ref(desired: DesiredState, path: Path) -> DesiredRef:
-    """What an apply records it works toward: holds are held against its content."""
-    from reconciler.core.planning.holds import desired_ref as ref
-
-    return ref(desired, str(path))
 
 
 def finishes_rollback(made: Plan) -> bool:
