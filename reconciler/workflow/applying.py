@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from reconciler.workflow.followed import Followed
     from schemas.desired import DesiredState
     from schemas.plan import Plan
-    from schemas.record import AppRecord, DesiredRef
+    from schemas.record import AppRecord, DesiredRef, StateRecord
 
 
 @dataclass(frozen=True)
@@ -168,6 +168,21 @@ def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
     execute(made, ctx, progress=lambda text: report(Progress(text)),
             keep=options.keep_generations)
     return Applied(len(made.steps), standing(machine, ctx.record.apps), log)
+
+
+def installed_apps(record: StateRecord, name: str | None, nothing: str) -> list[AppRecord]:
+    """The installed apps a command works on: the one named, else all. With no app
+    installed, or a name that is not installed, it is refused (`nothing`: what the command
+    then cannot do), naming the installed apps."""
+    if not record.apps:
+        raise LpamError(f"no app is installed: {nothing}", hint="install one with `lpam apply`")
+    if name is None:
+        return list(record.apps)
+    found = record.installed(name)
+    if found is None:
+        raise LpamError(f"no installed app is named {name!r}: {nothing}",
+                        hint=f"installed: {', '.join(a.name for a in record.apps)}")
+    return [found]
 
 
 def standing(machine: Machine, apps: Sequence[AppRecord] | None = None) -> str:

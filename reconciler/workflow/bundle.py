@@ -2,11 +2,9 @@
 
 `create` (on a laptop with network) fetches the desired-state repository's branch, reads
 every desired state in it (`desired-state.yaml`, `vehicles/*.yaml`), resolves each to the
-commits of its app and ROS repositories, and writes one git bundle (dulwich's bundle
-support, behind adapters/bundle.py) holding all their objects, with refs for the branch and
-each pinned commit, and a manifest blob saying which commit belongs to which repository
-(URL, store key, the ref it resolved). Git's objects are content-addressed, so one pack
-holds many repositories.
+commits of its app and ROS repositories, and writes one git bundle of them all
+(adapters/bundle.py), its manifest naming each commit's repository by URL, store key and
+the ref it resolved.
 
 `unpack` (on the car, no network) reads the bundle into the store as if each repository
 had been fetched from its URL — the same origin, the same branch refs — after checking that

@@ -27,7 +27,7 @@ from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.executor import execute
 from reconciler.engine.execution.lock import apply_lock
 from reconciler.engine.records import generations
-from reconciler.workflow.applying import ApplyOptions
+from reconciler.workflow.applying import ApplyOptions, installed_apps
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.gates import governing
 from reconciler.workflow.machine import Machine
@@ -106,18 +106,8 @@ def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine,
 
 def chosen_apps(record: StateRecord, name: str | None,
                 action: OperatorAction) -> list[AppRecord]:
-    """The installed apps an operator's command works on: the one named, else all; a name
-    that is not installed is refused, naming those that are."""
-    if not record.apps:
-        raise LpamError(f"no app is installed: nothing to {action}",
-                        hint="install one with `lpam apply`")
-    if name is None:
-        return list(record.apps)
-    found = record.installed(name)
-    if found is None:
-        raise LpamError(f"no installed app is named {name!r}: nothing to {action}",
-                        hint=f"installed: {', '.join(a.name for a in record.apps)}")
-    return [found]
+    """The installed apps an operator's command works on (`installed_apps`)."""
+    return installed_apps(record, name, f"nothing to {action}")
 
 
 def _done(action: OperatorAction, name: str, stepped: bool) -> str:
