@@ -99,9 +99,7 @@ def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine,
                              chosen=names, now=ctx.clock(), lpam_version=__version__)
         if made.steps:
             execute(made, ctx, progress=progress, record_result=False)
-    if len(chosen) == 1:
-        return _done(action, names[0], bool(made.steps))
-    return _done_several(action, names, made.steps)
+    return _done(action, names, made.steps)
 
 
 def chosen_apps(record: StateRecord, name: str | None,
@@ -110,23 +108,16 @@ def chosen_apps(record: StateRecord, name: str | None,
     return installed_apps(record, name, f"nothing to {action}")
 
 
-def _done(action: OperatorAction, name: str, stepped: bool) -> str:
+def _done(action: OperatorAction, names: list[str], steps: list[Step]) -> str:
+    """What an operator's command did to its apps: an app not started by it was already
+    running (one app alone was started by any step)."""
     if action == OperatorAction.STOP:
-        return (f"Stopped {name}; it stays stopped until `lpam start` or a change of "
-                "the desired state.")
+        until = "it stays stopped until `lpam start`" if len(names) == 1 else \
+            "each stays stopped until `lpam start` (or `lpam start APP`)"
+        return f"Stopped {', '.join(names)}; {until} or a change of the desired state."
     verb = "Restarted" if action == OperatorAction.RESTART else "Started"
-    return f"{verb} {name}." if stepped else f"{name} is already running."
-
-
-def _done_several(action: OperatorAction, names: list[str], steps: list[Step]) -> str:
-    """What an operator's command did to several apps: an app not started by it was
-    already running."""
-    listed = ", ".join(names)
-    if action == OperatorAction.STOP:
-        return (f"Stopped {listed}; each stays stopped until `lpam start` (or `lpam start "
-                "APP`) or a change of the desired state.")
-    verb = "Restarted" if action == OperatorAction.RESTART else "Started"
-    moved = {s.app.name for s in steps if isinstance(s, StartStep)}
+    moved = {s.app.name for s in steps if isinstance(s, StartStep)} if len(names) > 1 \
+        else set(names) if steps else set()
     done = [n for n in names if n in moved]
     idle = [n for n in names if n not in moved]
     said = [f"{verb} {', '.join(done)}."] if done else []
