@@ -389,8 +389,6 @@ def _confirm(args: argparse.Namespace) -> bool:
 
 
 def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
-    """`lpam start|stop|restart [APP]`: on the installed apps (or APP) now, journalled
-    like an apply."""
     from reconciler.workflow.operate import operate_installed
     from schemas.operator import OperatorAction
 
@@ -535,8 +533,7 @@ def cmd_install_ble(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
-    """The units run this very lpam (its interpreter, absolute) on this root; agent.yaml
-    must be valid first, so a car is never set to follow a source it cannot read."""
+    """The units run this very lpam (its interpreter, absolute) on this root."""
     from reconciler.workflow.agent import install_agent
 
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
@@ -550,7 +547,6 @@ def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
-    """Made under a temporary root of its own: a laptop needs no lpam installation."""
     from reconciler.workflow.packing import make_bundle
 
     count = make_bundle(layout, args.out, url=args.source, branch=args.branch,

@@ -40,13 +40,12 @@ from reconciler.base.errors import (
 )
 from reconciler.engine.records.state import read_override
 from reconciler.workflow.applying import ApplyOptions, apply
+from reconciler.workflow.bundle import BundleFile
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.followed import Followed as Followed
 from reconciler.workflow.followed import desired_of as _desired
-from reconciler.workflow.followed import followed as followed
-from reconciler.workflow.followed import read_status as read_status
-from reconciler.workflow.followed import vehicle_id as vehicle_id
+from reconciler.workflow.followed import followed, read_status, vehicle_id
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.source import SOURCE_KEY, DesiredStateSource
 from reconciler.workflow.source import join_url as join_url
@@ -105,7 +104,7 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     options = options or ApplyOptions()
     status = read_status(machine)
     vehicle = vehicle_id(machine, config)
-    source = _source(bundle)
+    source: DesiredStateSource = Remote() if bundle is None else BundleFile(bundle)
     try:
         offline = source.bring(machine, config, report,
                                lock_timeout=options.lock_wait(FETCH_LOCK_TIMEOUT))
@@ -279,15 +278,6 @@ def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *,
         report(Note(f"the fleet repository does not let this car rewrite {branch}, so its "
                     f"history grows past {HISTORY} commits: allow non-fast-forward pushes "
                     "to status/* (see the README's fleet section)"))
-
-
-def _source(bundle: Path | None) -> DesiredStateSource:
-    """The network, or the bundle file `lpam sync --bundle` names."""
-    if bundle is None:
-        return Remote()
-    from reconciler.workflow.bundle import BundleFile
-
-    return BundleFile(bundle)
 
 
 class Remote:
