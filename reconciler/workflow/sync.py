@@ -186,10 +186,9 @@ def _overridden(machine: Machine, local: LocalOverride, revision: str, *,
     why = (f"local override ({local.by}, since {local.since}): the fleet's revision "
            f"{revision[:12]} waits until `lpam apply --release` or the phone's update")
     report(Note(why))
-    done = _applied(machine, lambda: Followed.of(load_desired_document(path),
+    return _applied(machine, lambda: Followed.of(load_desired_document(path),
                                                  path.resolve().parent),
                     None, options=options, report=report, local=offline, why=why)
-    return done if done.reason is not None else Synced(done.result, None, why, done.hint)
 
 
 def _trusted(machine: Machine, config: AgentConfig, revision: str) -> str:
