@@ -38,14 +38,13 @@ class Entry:
     ref: str | None
 
 
-def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report,
-           lock_timeout: float = FETCH_LOCK_TIMEOUT) -> int:
+def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report) -> int:
     """Write the bundle of `url`'s `branch` to `out`; how many repositories it holds."""
     from reconciler.adapters import bundle
     from reconciler.engine.execution.lock import apply_lock
 
     store = machine.store()
-    with apply_lock(machine.layout, timeout=lock_timeout):
+    with apply_lock(machine.layout, timeout=FETCH_LOCK_TIMEOUT):
         store.fetch(SOURCE_KEY, url)
         refs = store.local_refs(SOURCE_KEY)
         tip = None if refs is None else refs.resolve(branch)
