@@ -26,14 +26,13 @@ from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS, Layout
 from reconciler.base.text import printable
-from reconciler.frontends.console import Terminal, debug_log, exit_code, now, terminate
+from reconciler.frontends.console import Terminal, debug_log, exit_code, terminate
 from reconciler.workflow.defaults import SCRIPT_TIMEOUT
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
     from reconciler.workflow.applying import ApplyOptions
     from reconciler.workflow.events import Event
     from reconciler.workflow.machine import Machine
-    from schemas.plan import Plan
     from schemas.record import HistoryEntry
 
 EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
@@ -342,16 +341,11 @@ def _ask(args: argparse.Namespace, question: str, *, what: str, verb: str) -> bo
 
 
 def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.core.planning.render import render
     from reconciler.workflow.planning import plan_file
 
-    made = plan_file(_machine(args, layout), _desired_path(args, layout), report=Terminal(),
+    plan = plan_file(_machine(args, layout), _desired_path(args, layout), report=Terminal(),
                      offline=args.offline, out=args.out, lock_timeout=args.lock_timeout)
-    return _show_plan(args, made)
-
-
-def _show_plan(args: argparse.Namespace, plan: Plan) -> int:
-    from reconciler.core.planning.render import render
-
     if args.json:
         print(plan.model_dump_json(indent=2))
     else:
@@ -395,8 +389,6 @@ def _confirm(args: argparse.Namespace) -> bool:
 
 
 def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
-    """`lpam start|stop|restart [APP]`: on the installed apps (or APP) now, journalled
-    like an apply."""
     from reconciler.workflow.operate import operate_installed
     from schemas.operator import OperatorAction
 
@@ -541,8 +533,7 @@ def cmd_install_ble(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
-    """The units run this very lpam (its interpreter, absolute) on this root; agent.yaml
-    must be valid first, so a car is never set to follow a source it cannot read."""
+    """The units run this very lpam (its interpreter, absolute) on this root."""
     from reconciler.workflow.agent import install_agent
 
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
@@ -556,7 +547,6 @@ def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
-    """Made under a temporary root of its own: a laptop needs no lpam installation."""
     from reconciler.workflow.packing import make_bundle
 
     count = make_bundle(layout, args.out, url=args.source, branch=args.branch,
@@ -568,6 +558,7 @@ def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
 
 def cmd_fleet(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow import fleet
+    from reconciler.workflow.machine import now
 
     tip, rows = fleet.read(args.repo, args.branch)
     at = now()  # the ages of the reports are measured against this machine's clock
@@ -579,7 +570,7 @@ def cmd_fleet(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_pin(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.pin import pin
 
-    path = args.file if args.file is not None else layout.desired_state
+    path = _desired_path(args, layout)
     done = pin(_machine(args, layout), path, report=Terminal(), catalogs=args.catalogs,
                write=not args.dry_run, lock_timeout=args.lock_timeout)
     if not done:

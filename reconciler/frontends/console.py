@@ -15,13 +15,13 @@ import os
 import sys
 import traceback
 from collections.abc import Callable
-from datetime import datetime, timezone
 from typing import TYPE_CHECKING, TypeVar
 
 from reconciler import __version__
 from reconciler.base.errors import LpamError, Terminated
 from reconciler.base.layout import Layout
 from reconciler.base.text import printable
+from reconciler.workflow.machine import now
 
 if TYPE_CHECKING:
     from reconciler.workflow.events import Event
@@ -29,11 +29,6 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 
 EXIT_BUG, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 130, 143  # 128 + SIGINT, 128 + SIGTERM
-
-
-def now() -> datetime:
-    return datetime.now(timezone.utc)
-
 
 def terminate(signum: int, frame: object) -> None:
     """SIGTERM as an exception raised where lpam stands (reconciler/base/errors.py)."""

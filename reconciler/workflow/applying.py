@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from reconciler.workflow.followed import Followed
     from schemas.desired import DesiredState
     from schemas.plan import Plan
-    from schemas.record import AppRecord, DesiredRef
+    from schemas.record import AppRecord, DesiredRef, StateRecord
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,7 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
     runs; nothing changes when it is declined. `local`: use no network, resolving refs as
     the last fetch (or an unpacked bundle) left them; refused if anything is not local.
     `places`: each desired app's (line, column) in `path`, as `plan` takes them."""
+    from reconciler.core.planning.holds import desired_ref
     from reconciler.core.planning.plan import unknown_values
     from reconciler.engine.execution.lock import apply_lock
     from reconciler.engine.observe.targets import Fetch
@@ -85,7 +86,7 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
         return execute_plan(machine, store, made, lock, options=options, report=report,
                             gate=machine.gate_for(desired, base),
                             listener=machine.listener_for(desired, base),
-                            desired=desired_ref(desired, path))
+                            desired=desired_ref(desired, str(path)))
 
 
 def apply_file(machine: Machine, path: Path, *, options: ApplyOptions,
@@ -120,13 +121,6 @@ def _end_override(machine: Machine, options: ApplyOptions, report: Report) -> Fo
     return applied_desired(machine)
 
 
-def desired_ref(desired: DesiredState, path: Path) -> DesiredRef:
-    """What an apply records it works toward: holds are held against its content."""
-    from reconciler.core.planning.holds import desired_ref as ref
-
-    return ref(desired, str(path))
-
-
 def finishes_rollback(made: Plan) -> bool:
     """The plan finishes a rollback a fault cut off: run even with no step left, so that
     the failure is recorded (workflow/planning.py)."""
@@ -155,12 +149,11 @@ def apply_saved(machine: Machine, saved: Plan, source: str, *, options: ApplyOpt
     from reconciler.workflow.gates import governing
 
     gates = governing(machine, None)
-    gate, listener = gates.gate, gates.listener
     with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         record = read_record(machine.layout)
         check_plan(saved, lineage=record.lineage, serial=record.serial, source=source)
         return execute_plan(machine, machine.store(), saved, lock, options=options,
-                            report=report, gate=gate, listener=listener)
+                            report=report, gate=gates.gate, listener=gates.listener)
 
 
 def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
@@ -175,6 +168,21 @@ def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
     execute(made, ctx, progress=lambda text: report(Progress(text)),
             keep=options.keep_generations)
     return Applied(len(made.steps), standing(machine, ctx.record.apps), log)
+
+
+def installed_apps(record: StateRecord, name: str | None, nothing: str) -> list[AppRecord]:
+    """The installed apps a command works on: the one named, else all. With no app
+    installed, or a name that is not installed, it is refused (`nothing`: what the command
+    then cannot do), naming the installed apps."""
+    if not record.apps:
+        raise LpamError(f"no app is installed: {nothing}", hint="install one with `lpam apply`")
+    if name is None:
+        return list(record.apps)
+    found = record.installed(name)
+    if found is None:
+        raise LpamError(f"no installed app is named {name!r}: {nothing}",
+                        hint=f"installed: {', '.join(a.name for a in record.apps)}")
+    return [found]
 
 
 def standing(machine: Machine, apps: Sequence[AppRecord] | None = None) -> str:

@@ -2,11 +2,9 @@
 
 `create` (on a laptop with network) fetches the desired-state repository's branch, reads
 every desired state in it (`desired-state.yaml`, `vehicles/*.yaml`), resolves each to the
-commits of its app and ROS repositories, and writes one git bundle (dulwich's bundle
-support, behind adapters/bundle.py) holding all their objects, with refs for the branch and
-each pinned commit, and a manifest blob saying which commit belongs to which repository
-(URL, store key, the ref it resolved). Git's objects are content-addressed, so one pack
-holds many repositories.
+commits of its app and ROS repositories, and writes one git bundle of them all
+(adapters/bundle.py), its manifest naming each commit's repository by URL, store key and
+the ref it resolved.
 
 `unpack` (on the car, no network) reads the bundle into the store as if each repository
 had been fetched from its URL — the same origin, the same branch refs — after checking that
@@ -40,14 +38,13 @@ class Entry:
     ref: str | None
 
 
-def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report,
-           lock_timeout: float = FETCH_LOCK_TIMEOUT) -> int:
+def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report) -> int:
     """Write the bundle of `url`'s `branch` to `out`; how many repositories it holds."""
     from reconciler.adapters import bundle
     from reconciler.engine.execution.lock import apply_lock
 
     store = machine.store()
-    with apply_lock(machine.layout, timeout=lock_timeout):
+    with apply_lock(machine.layout, timeout=FETCH_LOCK_TIMEOUT):
         store.fetch(SOURCE_KEY, url)
         refs = store.local_refs(SOURCE_KEY)
         tip = None if refs is None else refs.resolve(branch)

@@ -268,13 +268,11 @@ def remove_repository(machine: Machine, repository: str, *, by: str, options: Ap
                             f"(it lists: {listed})", hint=UNCHANGED)
         spec = current.repositories[index]
         names = {spec.key, spec.repo, spec.url, spec.name} - {None}
-        for app in installed:
-            if app.repository in names:
-                raise LpamError(f"the installed app {app.name} comes from {repository}",
-                                hint=f"enable another app (or none) first; {UNCHANGED}")
-        for wanted in current.apps:
-            if wanted.repository in names:
-                raise LpamError(f"the desired app {wanted.name} comes from {repository}",
+        users = [("installed", a.name, a.repository) for a in installed] + \
+            [("desired", a.name, a.repository) for a in current.apps]
+        for which, app, source in users:
+            if source in names:
+                raise LpamError(f"the {which} app {app} comes from {repository}",
                                 hint=f"enable another app (or none) first; {UNCHANGED}")
         roundtrip.drop(tree["repositories"], index)
 

@@ -127,15 +127,13 @@ def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
                 "check that the cars may push to this repository).")
     header = ("Vehicle", "Follows", "Applied", "Current", "App", "Running", "Last pass",
               "Last report")
-    cells: list[tuple[str, ...]] = [(r.vehicle, r.follows or "?", (r.applied or "none")[:12],
-              YES_NO[r.up_to_date],
-              _apps(r) + (f" (local override: {r.override})" if r.override else ""),
-              _running(r),
-              (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""),
-              ago(age(r, now)))
-             for r in rows]
-    cells = [tuple(printable(v)[:60] for v in row)
-             for row in cells]
+    cells = [tuple(printable(v)[:60] for v in (
+        r.vehicle, r.follows or "?", (r.applied or "none")[:12],
+        YES_NO[r.up_to_date],
+        _apps(r) + (f" (local override: {r.override})" if r.override else ""),
+        _running(r),
+        (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""),
+        ago(age(r, now)))) for r in rows]
     lines = columns(header, cells)
     lines.append(f"\nThe cars follow {(tip or 'an unknown revision')[:12]}. A car reports "
                  "when its status changes and at least every\nheartbeat (agent.yaml "

@@ -51,20 +51,12 @@ def app_logs(machine: Machine, lines: int, app: str | None = None) -> Shown:
     typed no name expects; notes name the app too. An unknown name is refused, naming
     the installed apps."""
     from reconciler.engine.records.state import read_record
+    from reconciler.workflow.applying import installed_apps
 
-    installed = read_record(machine.layout).apps
-    if not installed:
-        raise LpamError("no app is installed: there is no output to show",
-                        hint="install one with `lpam apply`")
-    if app is not None:
-        found = next((a for a in installed if a.name == app), None)
-        if found is None:
-            raise LpamError(f"no installed app is named {app!r}: there is no output to show",
-                            hint=f"installed: {', '.join(a.name for a in installed)}")
-        return logs_of(machine, found, lines)
-    if len(installed) == 1:
-        return logs_of(machine, installed[0], lines)
-    return _every_app(machine, installed, lines)
+    chosen = installed_apps(read_record(machine.layout), app, "there is no output to show")
+    if len(chosen) == 1:
+        return logs_of(machine, chosen[0], lines)
+    return _every_app(machine, chosen, lines)
 
 
 def _every_app(machine: Machine, installed: list[AppRecord], lines: int) -> Shown:

@@ -27,7 +27,7 @@ from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.executor import execute
 from reconciler.engine.execution.lock import apply_lock
 from reconciler.engine.records import generations
-from reconciler.workflow.applying import ApplyOptions
+from reconciler.workflow.applying import ApplyOptions, installed_apps
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.gates import governing
 from reconciler.workflow.machine import Machine
@@ -99,44 +99,25 @@ def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine,
                              chosen=names, now=ctx.clock(), lpam_version=__version__)
         if made.steps:
             execute(made, ctx, progress=progress, record_result=False)
-    if len(chosen) == 1:
-        return _done(action, names[0], bool(made.steps))
-    return _done_several(action, names, made.steps)
+    return _done(action, names, made.steps)
 
 
 def chosen_apps(record: StateRecord, name: str | None,
                 action: OperatorAction) -> list[AppRecord]:
-    """The installed apps an operator's command works on: the one named, else all; a name
-    that is not installed is refused, naming those that are."""
-    if not record.apps:
-        raise LpamError(f"no app is installed: nothing to {action}",
-                        hint="install one with `lpam apply`")
-    if name is None:
-        return list(record.apps)
-    found = record.installed(name)
-    if found is None:
-        raise LpamError(f"no installed app is named {name!r}: nothing to {action}",
-                        hint=f"installed: {', '.join(a.name for a in record.apps)}")
-    return [found]
+    """The installed apps an operator's command works on (`installed_apps`)."""
+    return installed_apps(record, name, f"nothing to {action}")
 
 
-def _done(action: OperatorAction, name: str, stepped: bool) -> str:
+def _done(action: OperatorAction, names: list[str], steps: list[Step]) -> str:
+    """What an operator's command did to its apps: an app not started by it was already
+    running (one app alone was started by any step)."""
     if action == OperatorAction.STOP:
-        return (f"Stopped {name}; it stays stopped until `lpam start` or a change of "
-                "the desired state.")
+        until = "it stays stopped until `lpam start`" if len(names) == 1 else \
+            "each stays stopped until `lpam start` (or `lpam start APP`)"
+        return f"Stopped {', '.join(names)}; {until} or a change of the desired state."
     verb = "Restarted" if action == OperatorAction.RESTART else "Started"
-    return f"{verb} {name}." if stepped else f"{name} is already running."
-
-
-def _done_several(action: OperatorAction, names: list[str], steps: list[Step]) -> str:
-    """What an operator's command did to several apps: an app not started by it was
-    already running."""
-    listed = ", ".join(names)
-    if action == OperatorAction.STOP:
-        return (f"Stopped {listed}; each stays stopped until `lpam start` (or `lpam start "
-                "APP`) or a change of the desired state.")
-    verb = "Restarted" if action == OperatorAction.RESTART else "Started"
-    moved = {s.app.name for s in steps if isinstance(s, StartStep)}
+    moved = {s.app.name for s in steps if isinstance(s, StartStep)} if len(names) > 1 \
+        else set(names) if steps else set()
     done = [n for n in names if n in moved]
     idle = [n for n in names if n not in moved]
     said = [f"{verb} {', '.join(done)}."] if done else []

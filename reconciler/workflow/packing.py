@@ -18,17 +18,14 @@ def make_bundle(layout: Layout, out: Path, *, url: str | None, branch: str | Non
     from reconciler.workflow.bundle import create
     from reconciler.workflow.machine import Machine
 
-    if url is None or branch is None:
+    if (url is None or branch is None) and layout.agent_config.exists():
         from reconciler.core.documents import load_agent
 
-        if url is None and not layout.agent_config.exists():
-            raise LpamError("which desired-state repository?",
-                            hint="pass --source URL (or run where agent.yaml names it)")
-        if layout.agent_config.exists():
-            config = load_agent(layout.agent_config)
-            url = url or config.source.url
-            branch = branch or config.source.branch
-    assert url is not None
+        config = load_agent(layout.agent_config)
+        url, branch = url or config.source.url, branch or config.source.branch
+    if url is None:
+        raise LpamError("which desired-state repository?",
+                        hint="pass --source URL (or run where agent.yaml names it)")
     with tempfile.TemporaryDirectory(prefix="lpam-bundle-root-") as tmp:
         machine = Machine.at(Layout(Path(tmp)), network_timeout=network_timeout)
         return create(machine, url, branch or "main", out, report=report)

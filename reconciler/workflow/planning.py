@@ -41,25 +41,24 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
     if offline and out is not None:
         raise LpamError("an --offline plan cannot be saved: it may hold values known only "
                         "after a fetch", hint="drop --offline to save an exact plan")
-    if offline:
-        return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
-                       busy=holder(machine.layout), places=places)[1]
-    try:
-        with apply_lock(machine.layout,
-                        timeout=LOCK_TIMEOUT if lock_timeout is None else lock_timeout):
-            _, made = prepare(machine, path, desired, fetch=Fetch.OBJECTS, report=report,
-                              places=places)
-            if out is not None:
-                from reconciler.base.atomic import write_atomic
+    busy = holder(machine.layout) if offline else None
+    if not offline:
+        try:
+            with apply_lock(machine.layout,
+                            timeout=LOCK_TIMEOUT if lock_timeout is None else lock_timeout):
+                _, made = prepare(machine, path, desired, fetch=Fetch.OBJECTS, report=report,
+                                  places=places)
+                if out is not None:
+                    from reconciler.base.atomic import write_atomic
 
-                write_atomic(out, made.model_dump_json(indent=2) + "\n")
-            return made
-    except LockError:
-        busy = holder(machine.layout)
-        if out is not None or busy is None:
-            raise
-        return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report,
-                       busy=busy, places=places)[1]
+                    write_atomic(out, made.model_dump_json(indent=2) + "\n")
+                return made
+        except LockError:
+            busy = holder(machine.layout)
+            if out is not None or busy is None:
+                raise
+    return prepare(machine, path, desired, fetch=Fetch.OFFLINE, report=report, busy=busy,
+                   places=places)[1]
 
 
 def plan_file(machine: Machine, path: Path, *, report: Report, offline: bool = False,

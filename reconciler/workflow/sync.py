@@ -40,19 +40,14 @@ from reconciler.base.errors import (
 )
 from reconciler.engine.records.state import read_override
 from reconciler.workflow.applying import ApplyOptions, apply
+from reconciler.workflow.bundle import BundleFile
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.followed import Followed as Followed
-from reconciler.workflow.followed import applied_desired as applied_desired
 from reconciler.workflow.followed import desired_of as _desired
-from reconciler.workflow.followed import followed as followed
-from reconciler.workflow.followed import read_status as read_status
-from reconciler.workflow.followed import vehicle_id as vehicle_id
+from reconciler.workflow.followed import followed, read_status, vehicle_id
 from reconciler.workflow.machine import Machine
-from reconciler.workflow.source import (
-    SOURCE_KEY,
-    DesiredStateSource,
-)
+from reconciler.workflow.source import SOURCE_KEY, DesiredStateSource
 from reconciler.workflow.source import join_url as join_url
 from schemas.agent import (
     PASSES_KEPT,
@@ -68,7 +63,6 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from schemas.override import LocalOverride
-
 
 
 @dataclass(frozen=True)
@@ -110,7 +104,7 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     options = options or ApplyOptions()
     status = read_status(machine)
     vehicle = vehicle_id(machine, config)
-    source = _source(bundle)
+    source: DesiredStateSource = Remote() if bundle is None else BundleFile(bundle)
     try:
         offline = source.bring(machine, config, report,
                                lock_timeout=options.lock_wait(FETCH_LOCK_TIMEOUT))
@@ -192,10 +186,9 @@ def _overridden(machine: Machine, local: LocalOverride, revision: str, *,
     why = (f"local override ({local.by}, since {local.since}): the fleet's revision "
            f"{revision[:12]} waits until `lpam apply --release` or the phone's update")
     report(Note(why))
-    done = _applied(machine, lambda: Followed.of(load_desired_document(path),
+    return _applied(machine, lambda: Followed.of(load_desired_document(path),
                                                  path.resolve().parent),
                     None, options=options, report=report, local=offline, why=why)
-    return done if done.reason is not None else Synced(done.result, None, why, done.hint)
 
 
 def _trusted(machine: Machine, config: AgentConfig, revision: str) -> str:
@@ -286,15 +279,6 @@ def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *,
                     "to status/* (see the README's fleet section)"))
 
 
-def _source(bundle: Path | None) -> DesiredStateSource:
-    """The network, or the bundle file `lpam sync --bundle` names."""
-    if bundle is None:
-        return Remote()
-    from reconciler.workflow.bundle import BundleFile
-
-    return BundleFile(bundle)
-
-
 class Remote:
     """The source's URL, fetched over the network."""
 
@@ -302,28 +286,24 @@ class Remote:
 
     def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
               lock_timeout: float) -> str | None:
-        return _fetch(machine, config, report, lock_timeout=lock_timeout)
+        """Fetch the source under the lock (a fetch is a write); the reason when offline."""
+        from reconciler.engine.execution.lock import apply_lock
+        from reconciler.engine.observe.targets import sound_copy
 
-
-def _fetch(machine: Machine, config: AgentConfig, report: Report, *,
-           lock_timeout: float) -> str | None:
-    """Fetch the source under the lock (a fetch is a write); the reason when offline."""
-    from reconciler.engine.execution.lock import apply_lock
-    from reconciler.engine.observe.targets import sound_copy
-
-    try:
-        with apply_lock(machine.layout, timeout=lock_timeout):
-            store = machine.store()
-            sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
-                       notice=lambda text: report(Note(text)))
-            # the other cars' status branches are not this car's business
-            store.fetch(SOURCE_KEY, config.source.url, skip="refs/heads/" + STATUS_PREFIX)
-    except StoreDamagedError:
-        raise  # its copy cannot be read: `_pass` records the pass as offline
-    except GitError as exc:
-        report(Note(f"offline: {exc.message}"))
-        return exc.message
-    return None
+        try:
+            with apply_lock(machine.layout, timeout=lock_timeout):
+                store = machine.store()
+                sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
+                           notice=lambda text: report(Note(text)))
+                # the other cars' status branches are not this car's business
+                store.fetch(SOURCE_KEY, config.source.url,
+                            skip="refs/heads/" + STATUS_PREFIX)
+        except StoreDamagedError:
+            raise  # its copy cannot be read: `_pass` records the pass as offline
+        except GitError as exc:
+            report(Note(f"offline: {exc.message}"))
+            return exc.message
+        return None
 
 
 def _tip(machine: Machine, config: AgentConfig) -> str | None:

@@ -63,14 +63,13 @@ def validate(path: Path, kind: Kind | None = None) -> str:
         raise ConfigError("is a file, not an app repository folder", path=path,
                           hint=f"give the folder that holds {CATALOG_FILE}, or another --kind")
     text = read_text(path)
+    guessed = kind is None
+    doc: Document | None = None
+    if kind is None:
+        data, doc = _parse(path, text)
+        kind = guess(data, path=path, position=lambda loc: _position(path, text, doc, loc))
     if kind is Kind.PLAN:
         return _plan(path)
-    data, doc = _parse(path, text)
-    guessed = kind is None
-    if kind is None:
-        kind = guess(data, path=path, position=lambda loc: _position(path, text, doc, loc))
-        if kind is Kind.PLAN:
-            return _plan(path)
     if doc is None:
         doc = load(path, text)
     try:
