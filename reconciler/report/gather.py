@@ -78,11 +78,13 @@ class Seen:
 
 def gather(layout: Layout, *, store: Objects | None = None,
            state: Callable[[str], UnitState] | None = None, manager: str | None = None,
-           record: StateRecord | None = None) -> Seen:
+           record: StateRecord | None = None, listed: bool = True) -> Seen:
     """Read what the report needs, the record once (an apply may rewrite it meanwhile).
     `state` asks the service manager (`manager`) about a unit; `record` replaces the one
-    on disk (the shim lists the desired state's repositories, not the recorded ones)."""
-    if store is None:
+    on disk (the shim lists the desired state's repositories, not the recorded ones).
+    `listed` False: no repository's catalog is read (the published status and the phone's
+    summary show the installed apps only, and an agent publishes every few minutes)."""
+    if store is None and listed:
         from reconciler.adapters.git import GitStore
 
         store = GitStore(layout)
@@ -90,7 +92,8 @@ def gather(layout: Layout, *, store: Objects | None = None,
         record = read_record(layout)
     lives = {} if state is None else \
         {a.name: state(a.service) for a in record.apps if a.service is not None}
-    return Seen(record=record, listings=tuple(listings(record, store)), lives=lives,
+    found = () if store is None or not listed else tuple(listings(record, store))
+    return Seen(record=record, listings=found, lives=lives,
                 manager=manager, alive=_alive(layout, record), agent=_agent(layout),
                 override=_override(layout), deferred=_deferred(layout))
 

@@ -27,11 +27,12 @@ FIRST_ONLY_NEW = {"claims", "claims_known", "said"}
 def report(layout: Layout, *, store: Objects | None = None,
            state: Callable[[str], UnitState] | None = None, manager: str | None = None,
            record: StateRecord | None = None, plan: Plan | str | None = None,
-           gates: str | None = None) -> StatusReport:
+           gates: str | None = None, listed: bool = True) -> StatusReport:
     """The car now. `state` asks the service manager (`manager`) about a unit; `plan`
-    and `gates`, where a face shows them, say what an apply would do and the gates now."""
-    return build(gather(layout, store=store, state=state, manager=manager, record=record),
-                 plan=plan, gates=gates)
+    and `gates`, where a face shows them, say what an apply would do and the gates now;
+    `listed` False leaves out the rows of the repositories' apps (no catalog is read)."""
+    return build(gather(layout, store=store, state=state, manager=manager, record=record,
+                        listed=listed), plan=plan, gates=gates)
 
 
 def json_of(shown: StatusReport) -> dict[str, Any]:

@@ -223,7 +223,7 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     own = read_status(machine)
     if own.vehicle is None:
         return
-    seen = machine_status.report(machine.layout, state=machine.services.state)
+    seen = machine_status.report(machine.layout, state=machine.services.state, listed=False)
     every = [a.published() for a in seen.installed]
     now = machine.clock()
     local = read_override(machine.layout)

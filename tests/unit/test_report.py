@@ -10,16 +10,20 @@ import json
 from datetime import datetime, timezone
 from pathlib import Path
 
+import pytest
+
+from reconciler.base.layout import Layout
 from reconciler.base.unit import UnitState
 from reconciler.core.planning.plan import seal
 from reconciler.core.privzone.messages import app_info_message
 from reconciler.core.publication import read_status_file, status_file
+from reconciler.engine.records.state import write_record
 from reconciler.frontends.ble.answers import summary_of
 from reconciler.frontends.shim import lpam_text
 from reconciler.report import table
 from reconciler.report.build import build
 from reconciler.report.gather import Listing, Seen
-from reconciler.report.status import json_of
+from reconciler.report.status import json_of, report
 from schemas.agent import AgentStatus
 from schemas.catalog import CatalogApp
 from schemas.plan import Action, Change
@@ -150,3 +154,30 @@ def test_the_phone_summary_says_the_plan_the_report_holds() -> None:
     unknown = build(seen(), plan="not known: the lock is held")
     assert summary_of(unknown)["plan"] == "not known: the lock is held"
     assert summary_of(build(seen()))["plan"] == ""  # status itself plans nothing
+
+
+class Untouchable:
+    """A repository store that fails any read: what must not be read reads nothing."""
+
+    def has_commit(self, key: str, commit: str) -> bool:
+        raise AssertionError("read the store")
+
+    def read_file(self, key: str, commit: str, path: str) -> bytes | None:
+        raise AssertionError("read the store")
+
+    def damage(self, key: str) -> str | None:
+        raise AssertionError("read the store")
+
+
+def test_the_installed_apps_alone_read_no_catalog(tmp_path: Path) -> None:
+    """The published status and the phone's summary show the installed apps: their report
+    reads no repository (an agent publishes every few minutes), and says the same of
+    each installed app as the whole one."""
+    layout = Layout(tmp_path / "root")
+    write_record(layout, seen().record)
+    units = seen().lives
+    short = report(layout, store=Untouchable(), state=lambda unit: units[unit[9:]],
+                   listed=False)
+    assert short.apps == [] and short.installed == build(seen()).installed
+    with pytest.raises(AssertionError, match="read the store"):
+        report(layout, store=Untouchable(), state=lambda unit: units[unit[9:]])

@@ -132,7 +132,7 @@ def summary(machine: Machine) -> dict[str, str]:
 
     plan, gates = _plan_and_gates(machine)
     return summary_of(status.report(machine.layout, state=machine.services.state,
-                                    plan=plan, gates=gates))
+                                    plan=plan, gates=gates, listed=False))
 
 
 def summary_of(shown: StatusReport) -> dict[str, str]:
