@@ -51,7 +51,8 @@ def _forkserver() -> ForkServerContext:
             import multiprocessing
 
             context = multiprocessing.get_context("forkserver")
-            context.set_forkserver_preload(["reconciler.adapters.wire", "dulwich.client"])
+            context.set_forkserver_preload(
+                ["reconciler.adapters.forkserved", "reconciler.adapters.wire", "dulwich.client"])
             _context = context
         return _context
 

@@ -296,3 +296,26 @@ def test_a_local_url_that_is_not_a_directory_is_refused(layout: Layout, tmp_path
         assert_fails_in_time(partial(store.fetch, KEY, url), "not a directory")
         assert_fails_in_time(partial(store.ls_remote, url), "not a directory")
     assert_store_untouched(layout)
+
+
+CUT_HANDOVER = textwrap.dedent("""
+    import os, time
+    from multiprocessing import forkserver
+    from reconciler.adapters import deadline
+
+    deadline._forkserver()            # lpam's forkserver, with lpam's preloads
+    status_r, data_w = forkserver._forkserver.connect_to_new_process([])
+    pid = forkserver.read_signed(status_r)
+    os.close(data_w)                  # lpam dies before it hands the request over
+    forkserver.read_signed(status_r)  # the child's exit code: it has finished
+""")
+
+
+def test_a_hand_over_cut_by_ctrl_c_prints_no_traceback() -> None:
+    """Ctrl-C or a kill while lpam hands a request to the forkserver left the forked child
+    reading half a request; multiprocessing then printed an EOFError traceback under lpam's
+    own "interrupted" line. The forkserver's children leave quietly."""
+    done = subprocess.run([sys.executable, "-c", CUT_HANDOVER], capture_output=True,
+                          text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr, done.stderr
