@@ -7,7 +7,8 @@ flag calls one workflow function â€” the same ones the Bluetooth service calls â
 rule (lock, gates, validation, health check) is lpam's. Unlike LPAM, it tells the truth:
 exit 0 only on success, each error one line on stderr, a value that looks like an option
 (`-i --upload-pack=x`) refused as a usage error, and no shell anywhere. LPAM's interactive
-menu (no flags) is gone: usage, exit 2.
+menu (no flags) is gone: the usage is printed instead (on stderr, with exit 2: nothing
+was done, as for any usage error), so that whoever typed the bare name learns the flags.
 
 A car may run several apps side by side (issue 22): `-d` says `yes` under Enabled for each
 installed app and `-c` prints each on its own line, as LPAM printed its one; `-i APP`
@@ -77,6 +78,10 @@ class UsageError(Exception):
     """The command line is wrong: nothing was done (exit 2)."""
 
 
+class NoFlag(UsageError):
+    """No flag at all, where LPAM opened its menu: the usage is what helps (exit 2)."""
+
+
 @dataclass
 class Command:
     """The parsed command line: the flags in order, and the repository to add last."""
@@ -135,7 +140,8 @@ def _command(pairs: list[tuple[str, str | None]]) -> Command:
     if command.branch is not None and command.repository is None:
         raise UsageError("-b BRANCH goes with -g OWNER/REPO")
     if not command.help and not command.actions and command.repository is None:
-        raise UsageError("no flag given (LPAM's interactive menu is gone)")
+        raise NoFlag("no flag given (LPAM's interactive menu is gone): give one of the "
+                     "flags above")
     return command
 
 
@@ -271,6 +277,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         command = parse(sys.argv[1:] if argv is None else argv)
+    except NoFlag as exc:
+        print(USAGE, file=sys.stderr)
+        _fail(str(exc))
+        return EXIT_USAGE
     except UsageError as exc:
         _fail(f"{exc} (see {PROG} -h)")
         return EXIT_USAGE
