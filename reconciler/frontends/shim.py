@@ -159,7 +159,9 @@ def table(rows: Sequence[CatalogRow]) -> str:
 def lpam_text(flag: str, shown: StatusReport) -> str:
     """LPAM's answer to a reading flag, rendered from the status report: `-d` the table,
     `-l` the app names, `-c` the installed apps (LPAM's `current:`, which named one), `-t`
-    each installed app's unit as its manager sees it (LPAM's, which had one app)."""
+    each installed app's unit as its manager sees it, one line per app that begins with
+    the app's name: LPAM had one app, and with several a bare unit state says of whom it
+    speaks only to one who knows each app's unit."""
     if flag == "d":
         return table(shown.listed())
     if flag == "l":
@@ -168,8 +170,9 @@ def lpam_text(flag: str, shown: StatusReport) -> str:
         return ("\n".join(a.name for a in shown.installed) or "None") + "\n"
     if not shown.installed:
         return NO_APP_STATE + "\n"
-    return "".join((a.unit.said if a.unit is not None else
-                    f"{a.name} names no service: lpam records it {a.status}") + "\n"
+    return "".join(f"{a.name}: " + (a.unit.said if a.unit is not None else
+                                     "names no service (no `service` file): lpam's record "
+                                     f"says {a.said}") + "\n"
                    for a in shown.installed)
 
 

@@ -144,7 +144,7 @@ def test_the_table_is_lpams_and_bluezone_reads_it(shim: Shim) -> None:
     ]
     assert shim.ok("-l") == "ticker tocker crasher\n"
     assert shim.ok("-c") == "ticker\n"
-    assert shim.ok("-t") == "unit lpam-app-ticker active (running)\n"
+    assert shim.ok("-t") == "ticker: unit lpam-app-ticker active (running)\n"
     # clustered as getopts reads them, in the order given
     assert shim.ok("-cl") == "ticker\nticker tocker crasher\n"
 
@@ -226,7 +226,7 @@ def test_u_s_k_and_t(shim: Shim) -> None:
     pid = running_pid(shim)
     assert "stays stopped" in shim.ok("-k")
     assert gone(pid) and shim.unit()["active"] == "inactive"
-    assert shim.ok("-t") == "unit lpam-app-ticker inactive (stopped)\n"
+    assert shim.ok("-t") == "ticker: unit lpam-app-ticker inactive (stopped)\n"
     shim.ok("-s")
     running_pid(shim)
     shim.ok("-u")
