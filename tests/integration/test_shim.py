@@ -129,7 +129,7 @@ def test_the_table_is_lpams_and_bluezone_reads_it(shim: Shim) -> None:
     lines = out.split("\n")
     assert lines[0] == HEADER and lines[-1] == ""
     assert lines[1] == "fleet/apps\tmain\tticker\tlpam-app-ticker\tyes\tyes\t\"ticks\""
-    assert lines[2].startswith("fleet/apps\tmain\ttocker\t\tno\tno\t\"")
+    assert lines[2].startswith("fleet/apps\tmain\ttocker\tlpam-app-tocker\tno\tno\t\"")
     assert out.isascii()
     rows = bluezone_rows(subprocess.run(
         [sys.executable, "-m", "reconciler.frontends.shim", "-d"], capture_output=True, check=True,
@@ -137,10 +137,12 @@ def test_the_table_is_lpams_and_bluezone_reads_it(shim: Shim) -> None:
     assert rows == [
         {"repository": "fleet/apps", "branch": "main", "app": "ticker",
          "service": "lpam-app-ticker", "enabled": "yes", "running": "yes", "description": "ticks"},
-        {"repository": "fleet/apps", "branch": "main", "app": "tocker", "service": "",
-         "enabled": "no", "running": "no", "description": TOCKER.replace('"', "")},
-        {"repository": "fleet/apps", "branch": "main", "app": "crasher", "service": "",
-         "enabled": "no", "running": "no", "description": ""},
+        # not installed: the unit lpam will run it as, never an empty Service
+        {"repository": "fleet/apps", "branch": "main", "app": "tocker",
+         "service": "lpam-app-tocker", "enabled": "no", "running": "no",
+         "description": TOCKER.replace('"', "")},
+        {"repository": "fleet/apps", "branch": "main", "app": "crasher",
+         "service": "lpam-app-crasher", "enabled": "no", "running": "no", "description": ""},
     ]
     assert shim.ok("-l") == "ticker tocker crasher\n"
     assert shim.ok("-c") == "ticker\n"
@@ -296,7 +298,10 @@ def test_on_a_fleet_car_an_edit_is_a_local_override_that_p_ends(car: Lpam, fleet
     try:
         assert car("sync").returncode == 0
         assert shim.ok("-c") == "alpha\n" and not shim.desired.exists()
-        assert [r["app"] for r in bluezone_rows(shim.ok("-d").encode())] == ["alpha", "beta"]
+        listed = bluezone_rows(shim.ok("-d").encode())
+        assert [r["app"] for r in listed] == ["alpha", "beta"]
+        # LPAM's Service: the app's `service` file, installed (alpha) or not (beta)
+        assert [r["service"] for r in listed] == ["can", "can"]
         shim.ok("-i", "beta")
         assert shim.ok("-c") == "beta\n"
         first = shim.desired.read_text().splitlines()[0]

@@ -1,14 +1,23 @@
 """`libpanda-app-manager`'s own words, without a car: what a user reads when they type
-the bare name, and what `-t` says of each installed app."""
+the bare name, what `-t` says of each installed app, and `-d`'s Service column."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
+from reconciler.base.unit import UnitState
+from reconciler.core.privzone.messages import app_info_message
 from reconciler.frontends import shim
+from reconciler.report.build import build
+from reconciler.report.gather import Listing, Seen
+from schemas.catalog import CatalogApp
+from schemas.record import AppRecord, RepositoryRecord, StateRecord
 from schemas.report import InstalledApp, StatusReport, UnitView
+
+COMMIT = "c" * 40
 
 
 def test_the_bare_name_prints_the_usage_and_exits_2(
@@ -51,3 +60,30 @@ def test_each_t_line_names_its_app() -> None:
         "scripted: names no service (no `service` file): lpam's record says installed",
     ]
     assert shim.lpam_text("t", StatusReport()) == "inactive (none installed)\n"  # LPAM's
+
+
+def test_the_service_column_is_never_empty_installed_or_not() -> None:
+    """LPAM's `-d` (and the phone's list, from the same rows) showed each app's service
+    from its `service` file whether installed or not. An app lpam runs itself has the unit
+    lpam writes for it, known before it is installed; an app that names none says so."""
+    record = StateRecord(
+        repositories=[RepositoryRecord(key="o/apps", url="git://x/o/apps.git", ref="main",
+                                       commit=COMMIT, applied=COMMIT)],
+        apps=[AppRecord(name="ticker", repository="o/apps", commit=COMMIT, tree="t" * 40,
+                        path="ticker/", generation="tic-g1", status="running",
+                        service="lpam-app-ticker", command=["python3", "run.py"])])
+    listed = (CatalogApp(name="ticker", path="ticker/", command=["python3", "run.py"]),
+              CatalogApp(name="tocker", path="apps/tocker/", command=["python3", "run.py"]),
+              CatalogApp(name="roslaunched", path="rl", launch="pkg/x.launch"),
+              CatalogApp(name="cbf", path="cbf/", service="can"),
+              CatalogApp(name="bare", path="bare/"))
+    report = build(Seen(record=record, listings=(Listing("o/apps", "main", COMMIT[:12],
+                                                         listed),),
+                        lives={"ticker": UnitState("lpam-app-ticker", True, "active")}))
+    cells = [line.split("\t") for line in shim.lpam_text("d", report).splitlines()[1:]]
+    assert [(c[2], c[3], c[4]) for c in cells] == [
+        ("ticker", "lpam-app-ticker", "yes"), ("tocker", "lpam-app-tocker", "no"),
+        ("roslaunched", "lpam-app-rl", "no"), ("cbf", "can", "no"), ("bare", "none", "no")]
+    phone = json.loads(json.loads(b"".join(app_info_message(report.listed()))[:-1])
+                       ["contents"])
+    assert [r["service"] for r in phone] == [c[3] for c in cells]
