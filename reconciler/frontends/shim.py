@@ -54,10 +54,12 @@ LPAM's command line, on top of lpam: each flag edits lpam's default desired stat
 ($LPAM_ROOT/etc/lpam/desired-state.yaml, LPAM_ROOT default /) and applies it, or asks it.
 
   -d               the apps of every repository: a tab-separated table (LPAM's, for bluezone);
-                   Enabled is yes for each installed app
+                   Enabled is yes for each installed app; Service is the app's unit
+                   (`none`: it names none)
   -l               the app names
   -c               the installed apps, one a line, or None
-  -t               each installed app's service, as its service manager sees it
+  -t               each installed app's service, as its service manager sees it: a
+                   line per app, beginning with its name
   -i APP           enable APP and apply (install, start): it replaces the apps that claim a
                    resource APP claims (the panda...) and runs beside the others; in a
                    version-1 desired state (one app) it replaces the app
