@@ -289,13 +289,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         _fail(f"{exc} (see {PROG} -h)")
         return EXIT_USAGE
-    if command.help:
-        print(USAGE)
-        return EXIT_OK
     signal.signal(signal.SIGTERM, terminate)
 
     def body() -> int:
-        run(_machine(), command)
+        if command.help:  # guarded too: `-h | head` closes stdout early
+            print(USAGE)
+        else:
+            run(_machine(), command)
         return EXIT_OK
 
     return exit_code(

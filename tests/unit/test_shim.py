@@ -4,6 +4,9 @@ the bare name, what `-t` says of each installed app, and `-d`'s Service column."
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -87,3 +90,15 @@ def test_the_service_column_is_never_empty_installed_or_not() -> None:
     phone = json.loads(json.loads(b"".join(app_info_message(report.listed()))[:-1])
                        ["contents"])
     assert [r["service"] for r in phone] == [c[3] for c in cells]
+
+
+def test_help_read_by_a_reader_that_leaves_early_is_no_traceback(tmp_path: Path) -> None:
+    """`libpanda-app-manager -h | head -3`: the reader closes the pipe; nothing more is
+    said and the exit is 0, as for `lpam plan | head`."""
+    done = subprocess.run(
+        f"for i in 1 2 3; do {sys.executable} -m reconciler.frontends.shim -h | head -1; done",
+        shell=True, capture_output=True, text=True, timeout=60, cwd=tmp_path,
+        env={**os.environ, "LPAM_ROOT": str(tmp_path),
+             "PYTHONPATH": str(Path(shim.__file__).resolve().parents[2])})
+    assert done.stdout.count("usage: libpanda-app-manager") == 3  # a race: three tries
+    assert done.stderr == "", done.stderr
