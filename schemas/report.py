@@ -22,6 +22,7 @@ from schemas.plan import Change
 from schemas.record import AppStatus, Cutover, LastResult
 
 REPORT_VERSION: Literal[1] = 1
+NO_SERVICE = "none"  # LPAM's table and the phone: an app that names no service
 
 
 class _View(BaseModel):
@@ -90,8 +91,10 @@ class CatalogRow(_View):
 
     @property
     def named_service(self) -> str:
-        """The service as LPAM's table showed it: empty when the app names none."""
-        return "" if self.service == "-" else self.service
+        """The service as LPAM's table and the phone show it: `none` when the app names
+        none (no `service` file, no program lpam runs), never an empty field, which reads
+        as a column lost or a value not known."""
+        return NO_SERVICE if self.service == "-" else self.service
 
 
 class HoldView(_View):

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from reconciler.base.unit import unit_name
+from reconciler.core.planning.model import app_folder
 from schemas.report import (
     CatalogRow,
     Checkout,
@@ -114,15 +116,25 @@ def _row(listing: Listing, app: CatalogApp, seen: Seen) -> CatalogRow:
     mine = seen.record.installed(app.name)
     if mine is None or mine.repository != listing.repository:
         return CatalogRow(repository=listing.repository, ref=listing.ref,
-                          commit=listing.commit, app=app.name, service=app.service or "-",
+                          commit=listing.commit, app=app.name, service=service_of(app),
                           installed=False, running=False, status=None,
                           description=app.description)
     runs, verified = running(mine, seen.lives.get(mine.name))
     return CatalogRow(repository=listing.repository, ref=listing.ref,
                       commit=mine.commit[:12], app=app.name,
-                      service=mine.service or app.service or "-", installed=True,
+                      service=mine.service or service_of(app), installed=True,
                       running=runs, status=said(mine, runs), description=app.description,
                       verified=verified)
+
+
+def service_of(app: CatalogApp) -> str:
+    """The service an app runs as, installed or not: the unit lpam writes for a scriptless
+    app (named after its folder, as staging names it), else the one its `service` file
+    names; `-` when it names none. Before, an app not installed showed none of lpam's
+    units, so LPAM's table had an empty Service for every scriptless app not installed."""
+    if app.command is not None or app.launch is not None:
+        return unit_name(app_folder(app.path))
+    return app.service or "-"
 
 
 def holds(record: StateRecord) -> list[HoldView]:
