@@ -72,7 +72,8 @@ class Agent:
                   report: Report) -> Agent:
         """The agent of `lpam agent`: its passes wait for closed gates as its settings say."""
         return cls(machine, config, report=report,
-                   options=replace(options, wait=config.gate_wait_seconds))
+                   options=replace(options, wait=config.gate_wait_seconds,
+                                   retry_after=config.interval_seconds))
 
     def wait(self, seconds: float) -> bool:
         return self.stop.wait(seconds)

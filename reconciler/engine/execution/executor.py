@@ -29,6 +29,7 @@ from reconciler.engine.execution.recovery import (
     AdvisoryJournal,
     begin_cutover,
     begun,
+    deferred,
     fail,
     finish,
     finish_pending,
@@ -59,6 +60,10 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
         _execute(plan, ctx, journal, progress, record_result=record_result, keep=keep)
     except StateWriteError as exc:  # a full disk: say where the record left the car
         raise unwritable_error(ctx, exc) from None
+    except Deferred as exc:  # a closed gate: deferred, never taken for a kill
+        if record_result:
+            deferred(ctx, exc)
+        raise
     except (KeyboardInterrupt, Terminated):
         if record_result:
             interrupted(ctx)
