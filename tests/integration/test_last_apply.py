@@ -1,9 +1,12 @@
-"""The last apply as `lpam status` tells it, through the real CLI (issue 30 items 1, 2):
-a deferred apply is deferred (never killed) until an apply after it ends it, and a running
-apply is in progress (never cut off at the same time)."""
+"""The last apply as `lpam status` tells it, through the real CLI (issue 30 items 1, 2, 9):
+a deferred apply is deferred (never killed) until an apply after it ends it, a running
+apply is in progress (never cut off at the same time), and a dead apply whose script
+still holds the lock is cut off — and `plan` words that script as `apply` does."""
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -92,3 +95,27 @@ def test_a_running_apply_is_in_progress_and_its_cutover_is_its_own(
         assert lpam.status()["last_apply"]["state"] == "in progress"
     assert apply.returncode == 0
     assert lpam.status()["last_apply"]["state"] == "succeeded"
+
+
+def test_a_dead_apply_whose_script_holds_the_lock_is_cut_off_and_plan_says_so(
+    lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon,
+) -> None:
+    """Item 9: lpam is killed while its start.sh runs; the script holds the lock on. `plan`
+    words it as `apply` does (a script of an apply that has ended, not "an apply in
+    progress" with a dead pid) and says that it fell back to an offline plan; status says
+    the apply was cut off, never in progress."""
+    with hanging_start(lpam, make_repo, git_daemon) as apply:
+        os.killpg(apply.pid, signal.SIGKILL)  # lpam; the script runs in its own group
+        apply.wait(timeout=10)
+        planned = lpam("plan", "--lock-timeout", "0.3")
+        assert planned.returncode == 0, planned.stderr
+        assert "a script of an apply that has ended" in planned.stderr, planned.stderr
+        assert "an apply in progress" not in planned.stderr
+        assert "offline" in planned.stderr and "nothing fetched" in planned.stderr
+        refused = lpam("apply", "--yes", "--lock-timeout", "0.3")
+        assert refused.returncode != 0
+        assert "a script of an apply that has ended" in refused.stderr, refused.stderr
+        shown = lpam("status")
+        assert last_line(shown.stdout).startswith("Last apply: cut off"), shown.stdout
+        assert "in progress" not in shown.stdout
+        assert lpam.status()["last_apply"]["state"] == "cut off"
