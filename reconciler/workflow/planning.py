@@ -43,9 +43,15 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
                         "after a fetch", hint="drop --offline to save an exact plan")
     busy = holder(machine.layout) if offline else None
     if not offline:
+        wait = LOCK_TIMEOUT if lock_timeout is None else lock_timeout
+        held = holder(machine.layout)
+        if held is not None:  # say why the plan is silent meanwhile, in apply's words
+            from reconciler.engine.execution.lock import Holding
+
+            report(Note(f"waiting up to {wait:g} s for the apply lock, held by "
+                        f"{Holding.of(held).describe()}"))
         try:
-            with apply_lock(machine.layout,
-                            timeout=LOCK_TIMEOUT if lock_timeout is None else lock_timeout):
+            with apply_lock(machine.layout, timeout=wait):
                 _, made = prepare(machine, path, desired, fetch=Fetch.OBJECTS, report=report,
                                   places=places)
                 if out is not None:

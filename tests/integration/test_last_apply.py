@@ -110,6 +110,8 @@ def test_a_dead_apply_whose_script_holds_the_lock_is_cut_off_and_plan_says_so(
         planned = lpam("plan", "--lock-timeout", "0.3")
         assert planned.returncode == 0, planned.stderr
         assert "a script of an apply that has ended" in planned.stderr, planned.stderr
+        assert "waiting up to 0.3 s for the apply lock, held by a script of an apply " \
+            "that has ended" in planned.stderr  # not 10 s of silence
         assert "an apply in progress" not in planned.stderr
         assert "offline" in planned.stderr and "nothing fetched" in planned.stderr
         refused = lpam("apply", "--yes", "--lock-timeout", "0.3")
