@@ -172,6 +172,40 @@ def test_the_agents_deferral_names_its_next_pass(tmp_path: Path) -> None:
         (NOW + timedelta(seconds=300)).isoformat(timespec="seconds")
 
 
+def test_a_deferral_leaves_the_desired_state_in_force_as_it_was(tmp_path: Path) -> None:
+    """Nothing was applied: an operator's stop, held against the desired state in force,
+    must not end because an apply of another file was deferred (holds.released)."""
+    from reconciler.core.planning.plan import make_plan
+    from reconciler.engine.execution.executor import execute
+    from reconciler.engine.observe.machine import observe
+    from reconciler.engine.records.state import write_record
+    from tests.unit.test_convergence import C2
+
+    world = running_x(tmp_path)
+    in_force = DesiredRef(fingerprint="a" * 64, source="/car/a.yaml")
+    write_record(world.layout, read_record(world.layout).model_copy(
+        update={"desired": in_force}))
+    targets = world.targets(("x", C2, {}))
+    plan = make_plan(targets, observe(world.layout, world.store, targets, world.services),
+                     now=NOW, lpam_version="t")
+    ctx = context(world, MemoryGate(["moving"]))
+    ctx.desired = DesiredRef(fingerprint="b" * 64, source="/car/b.yaml")
+    with pytest.raises(Deferred):
+        execute(plan, ctx, progress=lambda _: None)
+    after = read_record(world.layout)
+    assert after.desired == in_force
+    assert after.last_apply is not None and after.last_apply.result == "deferred"
+
+
+def test_nothing_to_do_under_a_rollbacks_hold_says_nothing_of_the_checkouts() -> None:
+    """The car is what the rollback returned to, not what the checkouts hold."""
+    from schemas.record import Hold
+
+    held = record(IN_PROGRESS).model_copy(update={"hold": Hold(desired="f" * 64)})
+    after = settled(held, now=WHEN, desired=None)
+    assert after is not None and [r.applied for r in after.repositories] == ["c" * 40]
+
+
 @pytest.mark.parametrize("stale", ["in progress", "deferred", "interrupted"])
 def test_an_apply_with_nothing_to_do_ends_a_stale_last_apply(stale: LastResult) -> None:
     desired = DesiredRef(fingerprint="f" * 64, source="/car/etc/lpam/desired-state.yaml")

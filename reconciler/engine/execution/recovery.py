@@ -151,11 +151,13 @@ def interrupted(ctx: Context) -> None:
 DEFERRED_PREFIX = "the cutover is deferred: "  # how the gates word a deferral
 
 
-def deferred(ctx: Context, exc: Deferred) -> None:
+def deferred(ctx: Context, exc: Deferred, *, desired: DesiredRef | None) -> None:
     """A closed gate ended the apply before its cutover: say so in the record, with the
     gates that were closed and when the agent's next pass tries again (best effort, as an
     interruption). No command is kept: the desired state to apply next time may no
-    longer be this one, and nothing on the running app changed."""
+    longer be this one. Nothing on the running app changed, so the desired state in force
+    stays the one before it (`desired`: what holds hold against — an operator's stop
+    must not end because an apply of another file was deferred)."""
     now = ctx.clock()
     reason = exc.message[len(DEFERRED_PREFIX):] if exc.message.startswith(DEFERRED_PREFIX) \
         else exc.message
@@ -164,7 +166,7 @@ def deferred(ctx: Context, exc: Deferred) -> None:
     last = LastApply(time=now.isoformat(timespec="seconds"), result="deferred",
                      reason=reason, gates=list(exc.gates), retry=retry)
     with contextlib.suppress(LpamError):
-        ctx.save(ctx.record.model_copy(update={"last_apply": last}))
+        ctx.save(ctx.record.model_copy(update={"last_apply": last, "desired": desired}))
 
 
 STALE: frozenset[str] = frozenset({"in progress", "deferred", "interrupted"})
@@ -184,12 +186,15 @@ def settled(record: StateRecord, *, now: str, desired: DesiredRef | None
     cut_off = record.cutover is not None and record.cutover.rollback is None
     if not owed and not cut_off:
         return None
+    # Under a rollback's hold nothing to do means the car is what the rollback returned to,
+    # not what the checkouts hold.
+    repositories = record.repositories if record.hold is not None else \
+        [r.model_copy(update={"applied": r.commit}) for r in record.repositories]
     return record.model_copy(update={
         "last_apply": LastApply(time=now, result="applied",
                                 reason="nothing was left to do: the machine matched the "
                                 "desired state"),
-        "repositories": [r.model_copy(update={"applied": r.commit})
-                         for r in record.repositories],
+        "repositories": repositories,
         "cutover": None,
         "desired": desired or record.desired,
     })
