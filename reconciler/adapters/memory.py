@@ -324,7 +324,8 @@ class MemoryGate:
                 return self
             progress("waiting for the gates")
         raise Deferred("the cutover is deferred: "
-                       + "; ".join(s.describe() for s in states if not s.open))
+                       + "; ".join(s.describe() for s in states if not s.open),
+                       gates=tuple(s.name for s in states if not s.open))
 
     def release(self) -> None:
         self.releases += 1

@@ -193,6 +193,12 @@ class VehicleSourceError(LpamError):
 class Deferred(LpamError):
     """A gate was closed when the cutover was due (the vehicle moving, a lock held, outside
     a window). Not a failure: everything was prepared, the running app is untouched, and the
-    next pass tries again. 75 is EX_TEMPFAIL of sysexits(3)."""
+    next pass tries again. 75 is EX_TEMPFAIL of sysexits(3). `gates`: the names of the
+    gates that were closed (vehicle, window, lock), which the state record keeps."""
 
     exit_code = 75
+
+    def __init__(self, message: str, *, hint: str | None = None,
+                 gates: tuple[str, ...] = ()) -> None:
+        super().__init__(message, hint=hint)
+        self.gates = gates
