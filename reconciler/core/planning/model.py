@@ -47,6 +47,7 @@ class RepoTarget:
     commit: str | None
     as_of_last_fetch: bool = False
     no_catalog: bool = False  # an app repository whose commit has no libpanda-apps.yaml
+    in_store: bool = False  # a pinned commit the store holds: its checkout needs no network
 
 
 @dataclass(frozen=True)

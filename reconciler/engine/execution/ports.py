@@ -56,6 +56,13 @@ class Store(Protocol):
 
     def fetch(self, key: str, url: str) -> None: ...
 
+    def repoint(self, key: str, url: str) -> None:
+        """Make `url` the checkout's origin without the network, for a checkout that already
+        holds the commit it needs (a pinned repository moved to another URL): a commit
+        names the same content whichever remote brought it. What the last fetch saw of the
+        old origin's branches and tags is set aside, never read as the new one's."""
+        ...
+
     def checkout(self, key: str, commit: str) -> None: ...
 
     def remove(self, key: str) -> None: ...

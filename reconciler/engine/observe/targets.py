@@ -142,7 +142,9 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: Resolving,
     if ref is not None and is_hex_commit(ref):
         # A commit hash names the same content whichever remote brought it.
         commit = store.resolve_local(key, ref)
-        if commit is None and fetch is not Fetch.OFFLINE:
+        if commit is not None:
+            return RepoTarget(key=key, url=url, ref=ref, commit=commit, in_store=True)
+        if fetch is not Fetch.OFFLINE:
             _bring(store, key, url, fetch)
             commit = store.resolve_local(key, ref)
             if commit is None:
