@@ -191,6 +191,10 @@ class MemoryStore:
             raise GitError(f"{key}: '{path}' is {len(data)} bytes, over {limit}")
         return data
 
+    def folder_files(self, key: str, commit: str, folder: str) -> list[str]:
+        found = self._folder(key, commit, folder)
+        return [] if found is None else sorted(n for n in found[1] if "/" not in n)
+
     def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
         found = self._folder(key, commit, folder)
         if found is None:

@@ -288,6 +288,8 @@ def test_a_folders_tree_and_where_the_checkout_is(
     store.fetch(KEY, remote.url)
     assert store.folder_tree(KEY, remote.first, "alpha") == remote.trees[remote.first]
     assert store.folder_tree(KEY, remote.first, "nowhere") is None
+    assert store.folder_files(KEY, remote.first, "alpha") == ["run.sh"]
+    assert store.folder_files(KEY, remote.first, "nowhere") == []
     assert store.read_file(KEY, remote.first, "alpha/run.sh") == b"echo one\n"
     with pytest.raises(GitError):
         store.read_file(KEY, remote.first, "alpha/run.sh", limit=4)

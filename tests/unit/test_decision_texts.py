@@ -97,7 +97,13 @@ def target(draw: st.DrawFn, name: str = "x") -> AppTarget:
         path=None if tree is None else name, tree=tree,
         params={"K": draw(st.sampled_from(["1", "2"]))},
         command=COMMAND if draw(st.booleans()) else None,
-        resources=frozenset(draw(st.lists(st.sampled_from(CLAIMS), unique=True))))
+        resources=frozenset(draw(st.lists(st.sampled_from(CLAIMS), unique=True))),
+        scripts=draw(some_scripts()))
+
+
+def some_scripts() -> st.SearchStrategy[frozenset[str] | None]:
+    """The scripts an app folder has: not read (None), or any of the four."""
+    return st.one_of(st.none(), st.frozensets(st.sampled_from(sorted(SCRIPTS))))
 
 
 @st.composite
@@ -112,7 +118,7 @@ def cases(draw: st.DrawFn) -> tuple[Decision, AppRecord | None, AppTarget | None
         new = AppTarget(name="x", repository=old.repository, commit=old.commit, path="x",
                         tree=old.tree, params={"K": draw(st.sampled_from(["1", "2"]))},
                         command=COMMAND if old.command else None,
-                        resources=old.claims)
+                        resources=old.claims, scripts=draw(some_scripts()))
         on_disk = draw(st.sampled_from([True, True, True, False]))
     generations = frozenset({GenerationKey.of("x", old.generation)}
                             if old is not None and on_disk else set())
@@ -135,7 +141,9 @@ def cases(draw: st.DrawFn) -> tuple[Decision, AppRecord | None, AppTarget | None
 def app_scripts(old: AppRecord | None, new: AppTarget | None) -> frozenset[str]:
     """The scripts the app a text speaks of has: none for a scriptless app."""
     if new is not None:
-        return frozenset() if new.command is not None or new.launch is not None else SCRIPTS
+        if new.command is not None or new.launch is not None:
+            return frozenset()
+        return SCRIPTS if new.scripts is None else new.scripts
     assert old is not None
     return frozenset() if old.scriptless else SCRIPTS
 
@@ -182,12 +190,13 @@ LIVES: list[UnitState | None] = [None, *(
 
 
 def test_every_installed_app_as_wanted_is_said_truly() -> None:
-    """The installed generation wanted, every way it can be (3,744 cases, each checked);
+    """The installed generation wanted, every way it can be (7,488 cases, each checked);
     with the random cases above, every kind of reason is seen."""
     seen: set[type] = set()
-    for status, held, good, scriptless, params, live, start, verify in product(
-            STATUSES, (True, False), (True, False), (True, False), ("1", "2"), LIVES,
-            (True, False), (True, False)):
+    for status, held, good, scripts, params, live, start, verify in product(
+            STATUSES, (True, False), (True, False), (None, frozenset(), SCRIPTS - {"start.sh"}),
+            ("1", "2"), LIVES, (True, False), (True, False)):
+        scriptless = scripts == frozenset()
         how = {"command": '["python3", "run.py"]'} if scriptless else {}
         tree = TREES[0]
         old = AppRecord(name="x", repository="o/apps", commit="a" * 40, tree=tree, path="x",
@@ -195,7 +204,8 @@ def test_every_installed_app_as_wanted_is_said_truly() -> None:
                         held=held, good=good, service="lpam-app-x",
                         command=list(COMMAND) if scriptless else None)
         new = AppTarget(name="x", repository="o/apps", commit="a" * 40, path="x", tree=tree,
-                        params={"K": params}, command=COMMAND if scriptless else None)
+                        params={"K": params}, command=COMMAND if scriptless else None,
+                        scripts=None if scriptless else scripts)
         decision = decide(old, new, frozenset({GenerationKey.of("x", old.generation)}), live,
                           start=start, verify=verify)
         said_truly(decision, old, new, ())
@@ -230,4 +240,20 @@ def test_a_scriptless_app_whose_start_was_cut_off_names_no_script() -> None:
     new = AppTarget(name="x", repository="o/apps", commit="a" * 40, path="x", tree=tree,
                     command=COMMAND)
     said = decide(old, new, frozenset({GenerationKey.of("x", old.generation)})).change().reason
-    assert ".sh" not in said and "the start of its unit cut off or failed" in said
+    assert ".sh" not in said and "(its start cut off or failed)" in said
+
+
+def test_an_app_without_an_install_script_is_not_said_to_run_one() -> None:
+    """An app folder without install.sh: new parameters after a cut-off install name no
+    install script, and a start.sh that the folder has is named."""
+    tree = TREES[0]
+    old = AppRecord(name="x", repository="o/apps", commit="a" * 40, tree=tree, path="x",
+                    params={"K": "1"}, generation=generation_id(tree, {}), status="installing")
+    new = AppTarget(name="x", repository="o/apps", commit="a" * 40, path="x", tree=tree,
+                    params={"K": "2"}, scripts=frozenset({"start.sh", "stop.sh"}))
+    key = frozenset({GenerationKey.of("x", old.generation)})
+    said = decide(old, new, key).change().reason
+    assert "install script" not in said and "its install, cut off before, runs again" in said
+    starting = old.model_copy(update={"status": "starting", "params": {"K": "2"}})
+    said = decide(starting, new, key).change().reason
+    assert "(start.sh cut off or failed)" in said

@@ -43,7 +43,13 @@ from reconciler.core.planning.lifecycle import (
     started,
     verified,
 )
-from reconciler.core.planning.model import UNKNOWN, AppTarget, GenerationKey, short
+from reconciler.core.planning.model import (
+    LIFECYCLE_SCRIPTS,
+    UNKNOWN,
+    AppTarget,
+    GenerationKey,
+    short,
+)
 from schemas.plan import Action, Change, Phase, Step, StepKind
 from schemas.record import ACTIVE, AppRecord, Stray
 
@@ -173,8 +179,8 @@ class FolderMissing:
 @dataclass(frozen=True)
 class Reconfigure:
     """New parameters (`keys`; none: a new user) for the installed generation; `stops`: it
-    may run, so it is stopped first; `scripts`: it runs by its lifecycle scripts (else by
-    a unit lpam writes, rewritten with the new values)."""
+    may run, so it is stopped first; `scripts`: the lifecycle scripts the app has (none:
+    a scriptless app, whose unit lpam rewrites with the new values)."""
 
     action: ClassVar[Action] = Action.UPDATE
     app: str
@@ -182,7 +188,7 @@ class Reconfigure:
     reinstall: bool  # its install was cut off: it runs again first
     restart: bool
     stops: bool = True
-    scripts: bool = True
+    scripts: frozenset[str] = LIFECYCLE_SCRIPTS
 
     def said(self) -> str:
         what = f"parameters changed ({', '.join(self.keys)})" if self.keys else "user changed"
@@ -190,11 +196,11 @@ class Reconfigure:
             then = f"{'restarted' if self.stops else 'started'} with the new values"
         else:
             then = f"{'stopped and ' if self.stops else ''}recorded, not started"
-        install = "its install script" if self.scripts else "the install of its unit"
+        has = "install.sh" in self.scripts
         if self.reinstall:
-            script = f"{install}, cut off before, runs again first"
+            script = f"its install{' script' if has else ''}, cut off before, runs again first"
         else:
-            script = "no install script runs" if self.scripts else "its unit is rewritten"
+            script = "no install script runs" if has else "nothing is reinstalled"
         return f"{self.app} {what}: {then}; {script}, no new generation"
 
 
@@ -210,7 +216,7 @@ class Held:
     status: str
     may_run: bool = False
     operator: bool = True
-    scripts: bool = True
+    scripts: frozenset[str] = LIFECYCLE_SCRIPTS
 
     @property
     def reinstall(self) -> bool:
@@ -306,24 +312,25 @@ _FINISHED = {
 _CUT = {"starting": "start", "installing": "install"}
 
 
-def _finished(status: str, scripts: bool) -> str:
+def _finished(status: str, scripts: frozenset[str]) -> str:
     """What finishing a cut-off lifecycle does; the script is named only for an app that
     has scripts (lpam starts a scriptless app's unit itself)."""
     cut = _CUT.get(status, "")
-    what = f"{cut}.sh cut off or failed" if scripts else f"the {cut} of its unit cut off or failed"
+    script = f"{cut}.sh"
+    what = f"{script} cut off or failed" if script in scripts else f"its {cut} cut off or failed"
     return _FINISHED[status].format(what)
 
 
 @dataclass(frozen=True)
 class Finish:
     """A script was cut off, or the app is installed and not running: finished or redone;
-    `scripts`: it runs by its lifecycle scripts (else by a unit lpam writes)."""
+    `scripts`: the lifecycle scripts the app has (none: a scriptless app)."""
 
     action: ClassVar[Action] = Action.UPDATE
     app: str
     status: str
     unproven: bool = False
-    scripts: bool = True
+    scripts: frozenset[str] = LIFECYCLE_SCRIPTS
 
     def said(self) -> str:
         return f"{self.app} {_finished(self.status, self.scripts)}" + _unproven(self.unproven)
@@ -423,10 +430,12 @@ def _stops(seen: AppRecord) -> bool:
     return seen.status in ACTIVE
 
 
-def _scripts(new: AppTarget) -> bool:
-    """Whether the app runs by its lifecycle scripts (a scriptless app by a unit lpam
-    writes): a text names a script only for an app that has them."""
-    return new.command is None and new.launch is None
+def _scripts(new: AppTarget) -> frozenset[str]:
+    """The lifecycle scripts the app has (none for a scriptless app, whose unit lpam
+    writes; all four when its folder was not read): a text names only these."""
+    if new.command is not None or new.launch is not None:
+        return frozenset()
+    return LIFECYCLE_SCRIPTS if new.scripts is None else new.scripts
 
 
 def _other(old: AppRecord, new: AppTarget, stops: bool) -> Reason:

@@ -138,6 +138,10 @@ class Resolving(Store, Protocol):
 
     def folder_tree(self, key: str, commit: str, folder: str) -> str | None: ...
 
+    def folder_files(self, key: str, commit: str, folder: str) -> list[str]:
+        """The names of the regular files directly in `commit:folder` ([] without it)."""
+        ...
+
 
 def ambiguous(key: str, ref: str, commits: Sequence[str]) -> RefNotFoundError:
     """What every store raises when an abbreviated hash names several commits."""

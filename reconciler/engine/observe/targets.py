@@ -34,6 +34,7 @@ from reconciler.base.layout import Layout
 from reconciler.base.unit import check_unit_name
 from reconciler.core.documents import parse_catalog
 from reconciler.core.planning.model import (
+    LIFECYCLE_SCRIPTS,
     UNKNOWN,
     AppTarget,
     Deps,
@@ -282,6 +283,9 @@ def _app_target(
                     f"{repo.key}@{short(repo.commit)}: app {spec.name}: its `service` file: "
                     f"{exc}", hint="fix the app's `service` file or pin another commit",
                 ) from None
+    # which scripts it has, for the plan's words (a script that is a link is not counted)
+    scripts = None if scriptless else LIFECYCLE_SCRIPTS.intersection(
+        store.folder_files(repo.key, repo.commit, entry.path))
     user = spec.user or default_user if scriptless else None
     if user is not None:
         _check_user(spec.name, user)
@@ -291,7 +295,7 @@ def _app_target(
         name=spec.name, repository=repo.key, commit=repo.commit, path=entry.path, tree=tree,
         params=dict(spec.params), service=service,
         command=tuple(entry.command) if entry.command is not None else None,
-        launch=entry.launch, user=user, resources=claims,
+        launch=entry.launch, user=user, resources=claims, scripts=scripts,
         health=HealthTarget(
             settle_seconds=DEFAULT_SETTLE_SECONDS if health.settle_seconds is None
             else health.settle_seconds,
