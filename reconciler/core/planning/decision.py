@@ -313,8 +313,8 @@ _CUT = {"starting": "start", "installing": "install"}
 
 
 def _finished(status: str, scripts: frozenset[str]) -> str:
-    """What finishing a cut-off lifecycle does; the script is named only for an app that
-    has scripts (lpam starts a scriptless app's unit itself)."""
+    """What finishing a cut-off lifecycle does; a script is named only when the app has it
+    (a scriptless app's unit lpam starts itself; a folder may lack start.sh)."""
     cut = _CUT.get(status, "")
     script = f"{cut}.sh"
     what = f"{script} cut off or failed" if script in scripts else f"its {cut} cut off or failed"
