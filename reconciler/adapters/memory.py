@@ -84,6 +84,7 @@ class MemoryStore:
         self.aside[key] = self.checkouts.pop(key)
         self.damaged.pop(key, None)
         self.fetched.pop(key, None)
+        self.brought.pop(key, None)
         path = Path(f".{slug(key)}~damaged")
         if self.layout is not None:
             path = self.layout.repositories / path.name
