@@ -37,9 +37,10 @@ from reconciler.core.planning.decision import (
     Unsupervised,
     decide,
 )
+from reconciler.core.planning.lifecycle import resume_text
 from reconciler.core.planning.model import UNKNOWN, AppTarget, GenerationKey, generation_id
 from schemas.plan import StepKind
-from schemas.record import AppRecord, Stray
+from schemas.record import AppRecord, StateRecord, Stray
 from tests.lengths import knob
 
 EXAMPLES = knob("LPAM_PROPERTY_EXAMPLES", 300, 5000)  # LPAM_LONG=1: a longer run
@@ -257,3 +258,15 @@ def test_an_app_without_an_install_script_is_not_said_to_run_one() -> None:
     starting = old.model_copy(update={"status": "starting", "params": {"K": "2"}})
     said = decide(starting, new, key).change().reason
     assert "(start.sh cut off or failed)" in said
+
+
+def test_what_the_next_apply_does_names_no_script_of_a_scriptless_app() -> None:
+    """lpam's words when it stops where it stands (a full disk) said "its scripts put it
+    back" of an app lpam runs as a unit."""
+    tree = TREES[0]
+    how = {"command": '["python3", "run.py"]'}
+    app = AppRecord(name="x", repository="o/apps", commit="a" * 40, tree=tree, path="x",
+                    generation=generation_id(tree, how), status="uninstalling",
+                    command=list(COMMAND), service="lpam-app-x")
+    said = resume_text(StateRecord(apps=[app]))
+    assert "script" not in said and "the next apply installs it again and goes on" in said
