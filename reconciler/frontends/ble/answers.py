@@ -144,7 +144,7 @@ def summary_of(shown: StatusReport) -> dict[str, str]:
         "generation": "" if app is None else app.generation,
         "status": "" if app is None else app.status,
         "running": "yes" if app is not None and app.running else "no",
-        "apps": ", ".join(f"{a.name} {a.status}" for a in shown.installed) or "None",
+        "apps": ", ".join(f"{a.name} {a.standing}" for a in shown.installed) or "None",
         "applied_revision": "" if agent is None else agent.applied_revision or "",
         "desired_revision": "" if agent is None else agent.desired_revision or "",
         "override": "none" if local is None else "? since ?"
