@@ -6,8 +6,10 @@ stays stopped and how to start it. The real CLI, a real git daemon and a real su
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from tests.gitserver import GitDaemon, RepoBuilder
-from tests.integration.apps import Lpam
+from tests.integration.apps import Lpam, apps_repo, desired
 from tests.integration.test_services import lpam  # noqa: F401  (the fixture)
 from tests.integration.test_several_faces import NAMES, installed, repo, three_apps  # noqa: F401
 
@@ -63,3 +65,31 @@ def test_a_rollback_starts_no_stopped_app_it_installs_anew(
     recorder = installed(lpam)["recorder"]
     assert (recorder["running"], recorder["held"]) == (False, True)
     assert "recorder was stopped by `lpam stop`" in lpam("status").stdout
+
+
+def test_status_names_the_hold_of_a_rollback_without_a_file(
+    lpam: Lpam, make_repo: Callable[[str], RepoBuilder],  # noqa: F811  (the fixture)
+    git_daemon: GitDaemon
+) -> None:
+    """Issue 30, item 5: after `lpam rollback` (no -f), `lpam status` names the hold —
+    on its own line with how it ends, and on the app's row and line, whose status
+    promises no apply's work while it holds — and the plan names it instead of saying
+    the machine matches the desired state."""
+    apps_repo(make_repo("apps.git"))
+    url = git_daemon.url("apps.git")
+    lpam.desired(desired(url, "alpha", MODE="one"))
+    assert lpam("apply", "--yes").returncode == 0
+    lpam.desired(desired(url, "alpha", MODE="two"))
+    assert lpam("apply", "--yes").returncode == 0
+    back = lpam("rollback", "--yes")
+    assert back.returncode == 0, back.stderr
+    shown = lpam("status").stdout
+    assert "Held: `lpam rollback` returned to generation" in shown, shown
+    assert "it ends when the desired state last applied" in shown, shown
+    row = next(line for line in shown.splitlines() if line.startswith("apps"))
+    assert "held by `lpam rollback`" in row, row
+    [app] = lpam.status()["installed"]
+    assert app["rollback_hold"] and "held by `lpam rollback`" in app["said"]
+    plan = lpam("plan").stdout
+    assert "No changes because of the holds in force: `lpam rollback` holds generation" \
+        in plan and "matches the desired state" not in plan, plan
