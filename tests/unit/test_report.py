@@ -112,7 +112,8 @@ def test_every_face_says_what_the_one_report_says() -> None:
     assert lpam_text("t", report).splitlines() == [a.unit.said for a in report.installed
                                                    if a.unit is not None]
     summary = summary_of(report)
-    assert (summary["app"], summary["running"]) == ("controller", "no")
+    assert (summary["app"], summary["running"], summary["status"]) == (
+        "controller", "no", "not running")  # one word with `running`, never "running"
     assert summary["apps"] == \
         "controller not running, recorder stopped by operator, tracker running"
     assert summary["applied_revision"] == "d" * 40
