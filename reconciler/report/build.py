@@ -49,8 +49,8 @@ def build(seen: Seen, *, plan: Plan | str | None = None,
     last = record.last_apply
     state = None if last is None else last_state(last, alive=seen.alive)
     return StatusReport(
-        installed=[_installed(a, seen.lives.get(a.name), rolled_back=record.hold is not None)
-                   for a in record.apps],
+        installed=[_installed(a, seen.lives.get(a.name), rolled_back=record.hold is not None,
+                              underway=seen.alive) for a in record.apps],
         service_manager=seen.manager,
         last_apply=None if last is None or state is None else LastApplyView(
             **last.model_dump(), state=state, shown=last_shown(last, alive=seen.alive)),
@@ -99,10 +99,12 @@ def standing(app: AppRecord, live: UnitState | None) -> Standing:
     return "not running" if app.status == "running" else "installed"
 
 
-def said(app: AppRecord, live: UnitState | None, *, rolled_back: bool = False) -> str:
+def said(app: AppRecord, live: UnitState | None, *, rolled_back: bool = False,
+         underway: bool = False) -> str:
     """`standing` as a person needs it: what lpam did, what is still owed and by which
     command. While a rollback holds, plans propose nothing: no text promises the next
-    apply's work then."""
+    apply's work then. `underway`: an apply lives, so a step it began is under way, not
+    cut off (never both: the last apply's line says which)."""
     word = standing(app, live)
     owed = "held by `lpam rollback`" if rolled_back else ""
 
@@ -111,14 +113,14 @@ def said(app: AppRecord, live: UnitState | None, *, rolled_back: bool = False) -
 
     if word == "stopped by operator":
         return word if not owed else then("")
-    if word == "stopping":
+    if word in ("stopping", "starting"):
+        verb = {"installing": "install", "starting": "start", "uninstalling": "uninstall"}\
+            .get(app.status, "stop")
+        if underway:
+            return then(f"{_step(app, verb)} under way: the apply in progress does it")
         if app.held:
             return then("an operator's stop did not finish: the next apply stops it")
-        return then(f"{'stop' if app.status == 'stopping' else 'uninstall'}.sh cut off or "
-                    "failed: the next apply finishes it")
-    if word == "starting":
-        script = "install" if app.status == "installing" else "start"
-        return then(f"{script}.sh under way or cut off: the next apply finishes it")
+        return then(f"{_step(app, verb)} cut off or failed: the next apply finishes it")
     if word == "not running":
         return then("drift: the next apply starts it")
     if word == "installed":
@@ -131,7 +133,16 @@ def said(app: AppRecord, live: UnitState | None, *, rolled_back: bool = False) -
     return f"{text}; held by `lpam rollback`" if owed else text
 
 
-def _installed(app: AppRecord, live: UnitState | None, *, rolled_back: bool) -> InstalledApp:
+def _step(app: AppRecord, verb: str) -> str:
+    """A lifecycle step named as the app has it: its script, or — for an app lpam runs
+    as a unit of its own (`command:`, `launch:`), which has no scripts — lpam's step."""
+    if app.command is not None or app.launch is not None:
+        return f"its {verb}"
+    return f"{verb}.sh"
+
+
+def _installed(app: AppRecord, live: UnitState | None, *, rolled_back: bool,
+               underway: bool) -> InstalledApp:
     runs, verified = running(app, live)
     unit = None if live is None else UnitView(
         name=live.name, known=live.known, active=live.active, sub=live.sub,
@@ -141,7 +152,7 @@ def _installed(app: AppRecord, live: UnitState | None, *, rolled_back: bool) -> 
         name=app.name, repository=app.repository, commit=app.commit,
         generation=app.generation, params=app.params, running=runs, verified=verified,
         status=app.status, standing=standing(app, live),
-        said=said(app, live, rolled_back=rolled_back), held=app.held,
+        said=said(app, live, rolled_back=rolled_back, underway=underway), held=app.held,
         rollback_hold=rolled_back, good=app.good, unit=unit, command=app.command,
         launch=app.launch, user=app.user, claims=sorted(app.claims),
         claims_known=app.resources is not None)
@@ -181,7 +192,8 @@ def _row(listing: Listing, app: CatalogApp, seen: Seen) -> CatalogRow:
                       commit=mine.commit[:12], app=app.name,
                       service=mine.service or service_of(app), installed=True,
                       running=runs, status=mine.status, standing=standing(mine, live),
-                      said=said(mine, live, rolled_back=seen.record.hold is not None),
+                      said=said(mine, live, rolled_back=seen.record.hold is not None,
+                                 underway=seen.alive),
                       description=app.description, verified=verified)
 
 

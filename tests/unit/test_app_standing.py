@@ -107,3 +107,20 @@ def test_under_a_rollback_hold_no_status_promises_the_next_apply() -> None:
     [app] = report.installed
     assert app.rollback_hold and "next apply" not in app.said
     assert app.said == "not running (held by `lpam rollback`)"
+
+
+@pytest.mark.parametrize("scripts", [True, False])
+def test_a_step_is_under_way_while_its_apply_lives_and_cut_off_once_it_is_gone(
+        scripts: bool) -> None:
+    """Item 2, on the app's row: while the apply lives (the last apply's line says "in
+    progress"), its start is under way, never "cut off"; once its process is gone, it was
+    cut off. An app lpam runs as a unit of its own has no start.sh to name."""
+    app = AppRecord(name="alpha", repository="apps", commit=COMMIT, tree="t" * 40,
+                    path="alpha/", generation="alp-g1", status="starting",
+                    command=None if scripts else ["python3", "run.py"])
+    record = StateRecord(apps=[app])
+    for alive, says, never in ((True, "under way", "cut off"), (False, "cut off", "under way")):
+        report = build(Seen(record=record, alive=alive))
+        text = report.installed[0].said
+        assert says in text and never not in text, text
+        assert ("start.sh" in text) is scripts, text
