@@ -88,6 +88,12 @@ OPTIONS: dict[str, Option] = {
 }
 """Every option more than one command takes, declared once. `--lock-timeout` defaults to
 None: each use case knows how long its lock waits (reconciler/workflow/defaults.py)."""
+GLOBAL = ("lock-timeout", "script-timeout", "network-timeout", "services", "keep-generations")
+"""The options the README names beside `--root`: each is accepted before the command as
+`--root` is (`lpam --services systemd apply`) and after it by the commands that use it.
+argparse copies a subcommand's defaults over what the main parser read, so the
+subcommands declare them with `default=SUPPRESS` and the main parser alone holds the
+defaults: written after the command, an option wins; before it, it is no longer lost."""
 
 New = Callable[[str, str], argparse.ArgumentParser]
 
@@ -103,6 +109,9 @@ def _parser() -> argparse.ArgumentParser:
         description="Make this vehicle's apps match a declared desired state.",
     )
     parser.add_argument("--version", action="version", version=f"lpam {__version__}")
+    for name in GLOBAL:
+        flags, options = OPTIONS[name]
+        parser.add_argument(*flags, **options)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def new(name: str, what: str) -> argparse.ArgumentParser:
@@ -119,7 +128,8 @@ def _add(parser: argparse.ArgumentParser, *names: str, **override: Any) -> None:
     fields (`help=`, `default=`) of each of them."""
     for name in names:
         flags, options = OPTIONS[name]
-        parser.add_argument(*flags, **{**options, **override})
+        own = {"default": argparse.SUPPRESS} if name in GLOBAL else {}
+        parser.add_argument(*flags, **{**options, **own, **override})
 
 
 def _plan_apply(new: New) -> None:
