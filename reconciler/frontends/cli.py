@@ -16,6 +16,7 @@ import argparse
 import gc
 import json
 import os
+import shlex
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -26,7 +27,7 @@ from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS, Layout
 from reconciler.base.text import printable
-from reconciler.frontends.console import Terminal, debug_log, exit_code, terminate
+from reconciler.frontends.console import Calling, Terminal, debug_log, exit_code, terminate
 from reconciler.workflow.defaults import SCRIPT_TIMEOUT
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
@@ -282,10 +283,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     signal.signal(signal.SIGTERM, terminate)
     layout = _layout(args)
+    for name, value in vars(args).items():
+        if isinstance(value, Path):  # said back in hints and records: run from anywhere
+            setattr(args, name, Path(os.path.abspath(value)))
+    args.calling = Calling.of(layout.root, services=args.services)
+    spell = args.calling.spell
     return exit_code(
         lambda: int(COMMANDS[args.command](args, layout)), bug=lambda: debug_log(layout),
-        failed=lambda exc: exc.render(), interrupted=lambda: _interrupted(args),
+        failed=lambda exc: spell(exc.render()), interrupted=lambda: spell(_interrupted(args)),
         internal=lambda log: f"error: internal error in lpam {__version__}; details in {log}")
+
+
+def _say(args: argparse.Namespace, text: str, *, err: bool = False) -> None:
+    """Print `text` with every command it suggests spelled for this root (`Calling`)."""
+    calling: Calling = getattr(args, "calling", Calling())
+    print(calling.spell(text), file=sys.stderr if err else sys.stdout)
+
+
+def _terminal(args: argparse.Namespace) -> Terminal:
+    return Terminal(getattr(args, "calling", None))
 
 
 def _interrupted(args: argparse.Namespace) -> str:
@@ -298,26 +314,33 @@ def _interrupted(args: argparse.Namespace) -> str:
 CHANGES_THE_CAR = ("apply", "sync", "agent", "start", "stop", "restart", "rollback")
 
 
-def again(args: argparse.Namespace) -> str:
-    """The command that goes on from where this one stopped, as the user would type it:
-    the same root and desired-state file (a saved plan is stale once part of it ran; a
-    rollback's -f names only the gates' file, and the apply that finishes it holds to the
-    generation it returns to)."""
-    import shlex
+RESUMED_WITH = ("script-timeout", "network-timeout", "lock-timeout", "keep-generations")
+"""The options a resumed command needs as this one had them (a long install needs its
+longer --script-timeout again): repeated when given other than their defaults."""
 
+
+def again(args: argparse.Namespace) -> str:
+    """The command that goes on from where this one stopped, as the user would type it in
+    any directory: the same root and desired-state file, absolute (a saved plan is stale
+    once part of it ran; a rollback's -f names only the gates' file, and the apply that
+    finishes it holds to the generation it returns to)."""
     from reconciler.workflow.operate import resumed_by
 
-    parts = ["lpam"]
-    root = getattr(args, "root", None)
-    if root:
-        parts += ["--root", str(root)]
+    calling: Calling = getattr(args, "calling", None) or Calling.of(
+        _layout(args).root, services=getattr(args, "services", None))
+    parts = calling.words
+    for name in RESUMED_WITH:
+        flags, options = OPTIONS[name]
+        value = getattr(args, name.replace("-", "_"), options["default"])
+        if value != options["default"]:
+            parts += [flags[0], f"{value:g}" if isinstance(value, float) else str(value)]
     parts.append(resumed_by(args.command))
     if args.command in ("start", "stop", "restart") and getattr(args, "app", None):
         parts.append(args.app)  # a stop of one app goes on with that app, no other
     if args.command != "rollback" and getattr(args, "file", None) is not None:
-        parts += ["-f", str(args.file)]
+        parts += ["-f", os.path.abspath(args.file)]
     if getattr(args, "config", None) is not None:
-        parts += ["--config", str(args.config)]
+        parts += ["--config", os.path.abspath(args.config)]
     return shlex.join(parts)
 
 
@@ -354,14 +377,15 @@ def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.core.planning.render import render
     from reconciler.workflow.planning import plan_file
 
-    plan = plan_file(_machine(args, layout), _desired_path(args, layout), report=Terminal(),
+    plan = plan_file(_machine(args, layout), _desired_path(args, layout), report=_terminal(args),
                      offline=args.offline, out=args.out, lock_timeout=args.lock_timeout)
     if args.json:
         print(plan.model_dump_json(indent=2))
     else:
-        print(render(plan))
+        _say(args, render(plan))
         if args.out is not None:
-            print(f"\nSaved the plan to {args.out}; apply it with `lpam apply {args.out}`.")
+            _say(args, f"\nSaved the plan to {args.out}; apply it with "
+                 f"`lpam apply {shlex.quote(str(args.out))}`.")
     if args.detailed_exitcode and plan.has_changes:
         return EXIT_CHANGES
     return EXIT_OK
@@ -377,11 +401,11 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
     if args.planfile is not None:
         print()
         done = apply_plan_file(_machine(args, layout), args.planfile, options=options,
-                               report=Terminal())
+                               report=_terminal(args))
     else:
         done = apply_file(_machine(args, layout), _desired_path(args, layout),
                           options=options, confirm=lambda plan: _confirm(args),
-                          report=Terminal())
+                          report=_terminal(args))
     if done.cancelled:
         print("Apply cancelled; nothing was changed.")
         return EXIT_ERROR
@@ -402,10 +426,10 @@ def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.operate import operate_installed
     from schemas.operator import OperatorAction
 
-    print(operate_installed(_machine(args, layout), OperatorAction(args.command),
-                            file=args.file, force=args.force,
-                            options=_options(args, wait=args.wait), report=Terminal(),
-                            app=args.app))
+    _say(args, operate_installed(_machine(args, layout), OperatorAction(args.command),
+                                 file=args.file, force=args.force,
+                                 options=_options(args, wait=args.wait),
+                                 report=_terminal(args), app=args.app))
     return EXIT_OK
 
 
@@ -423,11 +447,11 @@ def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
 
     done = roll_back(_machine(args, layout), file=args.file, force=args.force,
                      options=_options(args, wait=args.wait), confirm=confirm,
-                     report=Terminal())
+                     report=_terminal(args))
     if done is None:
         print("Rollback cancelled; nothing was changed.")
         return EXIT_ERROR
-    print(done)
+    _say(args, done)
     return EXIT_OK
 
 
@@ -497,15 +521,14 @@ def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.agent import one_pass, settings
 
     config = settings(layout, args.config)
-    done = one_pass(_machine(args, layout), config, wait=args.wait, report=Terminal(),
+    done = one_pass(_machine(args, layout), config, wait=args.wait, report=_terminal(args),
                     options=_options(args, keep_generations=args.keep_generations),
                     fetch_only=args.fetch_only, bundle=args.bundle)
     revision = done.revision[:12] if done.revision else "none"
-    print(f"Sync: {done.result} (revision {revision})"
-          + (f": {done.reason}" if done.reason else ""),
-          file=sys.stderr if done.code else sys.stdout)
+    _say(args, f"Sync: {done.result} (revision {revision})"
+         + (f": {done.reason}" if done.reason else ""), err=bool(done.code))
     if done.code and done.hint:
-        print(f"  hint: {done.hint}", file=sys.stderr)
+        _say(args, f"  hint: {done.hint}", err=True)
     return done.code
 
 
@@ -535,7 +558,7 @@ def cmd_install_ble(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.agent import install_ble
 
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
-    for path in install_ble(_machine(args, layout), command, report=Terminal()):
+    for path in install_ble(_machine(args, layout), command, report=_terminal(args)):
         print(f"Wrote {path}")
     print("The Bluetooth service answers the phone app (Privzone) as bluezone did; "
           "bluezone's own unit is stopped while it runs (Conflicts=).")
@@ -548,7 +571,7 @@ def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
 
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
     written, config = install_agent(_machine(args, layout), command, config_file=args.config,
-                                    report=Terminal())
+                                    report=_terminal(args))
     for path in written:
         print(f"Wrote {path}")
     print(f"The agent follows {config.source.url} ({config.source.branch}) every "
@@ -560,7 +583,7 @@ def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.packing import make_bundle
 
     count = make_bundle(layout, args.out, url=args.source, branch=args.branch,
-                        network_timeout=args.network_timeout, report=Terminal())
+                        network_timeout=args.network_timeout, report=_terminal(args))
     print(f"Wrote {args.out}: the desired state and {count} repositories it pins; on the "
           f"car: `lpam sync --bundle {args.out.name}`.")
     return EXIT_OK
@@ -581,7 +604,7 @@ def cmd_pin(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.pin import pin
 
     path = _desired_path(args, layout)
-    done = pin(_machine(args, layout), path, report=Terminal(), catalogs=args.catalogs,
+    done = pin(_machine(args, layout), path, report=_terminal(args), catalogs=args.catalogs,
                write=not args.dry_run, lock_timeout=args.lock_timeout)
     if not done:
         print(f"{path}: every repository is already pinned to a full commit.")
@@ -623,14 +646,14 @@ def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
         print(json.dumps(status.as_json(layout, state=services.state, manager=services.kind),
                          indent=2))
     else:
-        print(status.as_table(layout, state=services.state, manager=services.kind))
+        _say(args, status.as_table(layout, state=services.state, manager=services.kind))
     return EXIT_OK
 
 
 def cmd_validate(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.validation import Kind, validate
 
-    print(validate(Path(args.path), None if args.kind is None else Kind(args.kind)))
+    _say(args, validate(Path(args.path), None if args.kind is None else Kind(args.kind)))
     return EXIT_OK
 
 
@@ -641,7 +664,8 @@ def cmd_import(args: argparse.Namespace, layout: Layout) -> int:
     if args.output is None:
         print(text, end="")
     else:
-        print(f"Wrote {args.output}; review it, then `lpam plan -f {args.output}`.")
+        _say(args, f"Wrote {args.output}; review it, then "
+             f"`lpam plan -f {shlex.quote(str(args.output))}`.")
     return EXIT_OK
 
 

@@ -102,3 +102,19 @@ def test_lpam_runs_a_command_given_a_global_option_before_it(
     [args] = seen
     assert (args.services, args.script_timeout, args.network_timeout, args.lock_timeout,
             args.keep_generations, args.yes) == ("supervisor", 4.0, 5.0, 6.0, 2, True)
+
+
+def test_a_suggested_command_is_spelled_for_the_root_it_acts_on() -> None:
+    """The layers below write `lpam apply`; on a root other than / the face adds the root
+    (absolute) and a service manager named on the command line, once (issue 30, item 13)."""
+    from reconciler.frontends.console import Calling
+
+    text = "run `lpam apply --release`, or `lpam start`; not lpam itself"
+    assert Calling.of(Path("/")).spell(text) == text
+    sandbox = Calling.of(Path("/tmp/my root"), services="supervisor")
+    assert sandbox.spell(text) == (
+        "run `lpam --root '/tmp/my root' --services supervisor apply --release`, or "
+        "`lpam --root '/tmp/my root' --services supervisor start`; not lpam itself")
+    assert sandbox.spell(sandbox.spell(text)) == sandbox.spell(text)
+    said = "held by `lpam rollback`: nothing is proposed"  # a deed, not a suggestion
+    assert sandbox.spell(said) == said
