@@ -260,7 +260,7 @@ def _fail(message: str) -> None:
 
 def one_line(exc: LpamError) -> str:
     """The error as the CLI renders it (with its file:line:col), on one line."""
-    lines = exc.render().removeprefix("error: ").splitlines()
+    lines = exc.render().removeprefix(f"{exc.word}: ").splitlines()
     text = lines[0]
     hint = next((line.strip() for line in lines[1:] if line.strip().startswith("hint:")), None)
     return f"{text} ({hint})" if hint else text
@@ -284,7 +284,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_OK
 
     return exit_code(
-        body, bug=lambda: debug_log(_layout()), failed=lambda exc: _error(one_line(exc)),
+        body, bug=lambda: debug_log(_layout()),
+        failed=lambda exc: f"{PROG}: {exc.word}: {one_line(exc)}",
         interrupted=lambda: _error("interrupted: lpam recorded where it stood; `lpam apply` "
                                    "goes on from there"),
         internal=lambda log: _error(f"internal error; details in {log}"))

@@ -32,8 +32,8 @@ ENDINGS: dict[str, tuple[BaseException, int, str, str]] = {
     "document": (ConfigError("bad key", path=Path("/x/d.yaml"), line=3, column=4, hint="fix"),
                  1, "error: /x/d.yaml:3:4: bad key\n  hint: fix\n",
                  f"{SHIM}/x/d.yaml:3:4: bad key (hint: fix)\n"),
-    "deferred": (Deferred("gates closed"), 75, "error: gates closed\n",
-                 f"{SHIM}gates closed\n"),
+    "deferred": (Deferred("gates closed"), 75, "deferred: gates closed\n",  # not a failure
+                 "libpanda-app-manager: deferred: gates closed\n"),
     "reader-left": (BrokenPipeError(), 0, "", ""),
     "ctrl-c": (KeyboardInterrupt(), 130, "interrupted: nothing was changed\n",
                f"{SHIM}{RESUME_SHIM}\n"),
