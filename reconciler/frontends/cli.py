@@ -479,7 +479,11 @@ def cmd_gates(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
-    """The installed apps' output, or APP's (reconciler/workflow/logs.py says from where)."""
+    """The installed apps' output, or APP's (reconciler/workflow/logs.py says from where).
+    Ctrl-C is how a follow (`-f`) ends: it ends quietly with 0, as `journalctl -f` does —
+    not with "interrupted: nothing was changed" under the app's last line."""
+    from reconciler.base.errors import Terminated
+    from reconciler.frontends.console import EXIT_TERMINATED
     from reconciler.workflow.logs import app_logs, new_output
 
     machine = _machine(args, layout)
@@ -489,8 +493,14 @@ def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
     for line in shown.lines:
         print(line)
     if args.follow:
-        for line in new_output(machine, shown):
-            print(line, flush=True)
+        sys.stdout.flush()
+        try:
+            for line in new_output(machine, shown):
+                print(line, flush=True)
+        except KeyboardInterrupt:
+            return EXIT_OK
+        except Terminated:
+            return EXIT_TERMINATED
     return EXIT_OK
 
 

@@ -4,10 +4,12 @@ and help everywhere, and `--lock-timeout` left to each use case's own default.""
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from reconciler.base.errors import Terminated
 from reconciler.base.layout import KEEP_GENERATIONS
 from reconciler.frontends import cli
 
@@ -118,3 +120,24 @@ def test_a_suggested_command_is_spelled_for_the_root_it_acts_on() -> None:
     assert sandbox.spell(sandbox.spell(text)) == sandbox.spell(text)
     said = "held by `lpam rollback`: nothing is proposed"  # a deed, not a suggestion
     assert sandbox.spell(said) == said
+
+
+@pytest.mark.parametrize(("ending", "code"), [(KeyboardInterrupt, 0), (Terminated, 143)])
+def test_ctrl_c_ends_a_follow_quietly(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+    ending: type[BaseException], code: int,
+) -> None:
+    """Ctrl-C is how `lpam logs -f` ends: no "interrupted: nothing was changed" under the
+    app's output (issue 30, item 14)."""
+    from reconciler.workflow import logs
+
+    def following(machine: object, shown: object) -> Iterator[str]:
+        yield "tick 3"
+        raise ending
+
+    monkeypatch.setattr("signal.signal", lambda *args: None)  # pytest's handlers stay
+    monkeypatch.setattr(logs, "app_logs", lambda *args: logs.Shown(["tick 1", "tick 2"],
+                                                                   unit="x.service"))
+    monkeypatch.setattr(logs, "new_output", following)
+    assert cli.main(["--root", str(tmp_path), "logs", "-f", "-n", "2"]) == code
+    assert capsys.readouterr() == ("tick 1\ntick 2\ntick 3\n", "")
