@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS, Layout
-from reconciler.base.text import printable
+from reconciler.base.text import counted, printable
 from reconciler.frontends.console import Calling, Terminal, debug_log, exit_code, terminate
 from reconciler.workflow.defaults import SCRIPT_TIMEOUT
 
@@ -410,7 +410,8 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
         print("Apply cancelled; nothing was changed.")
         return EXIT_ERROR
     if done.steps:
-        print(f"\nApply complete: {done.steps} steps; {done.app}. Script output: {done.log}")
+        print(f"\nApply complete: {counted(done.steps, 'step')}; {done.app}. "
+              f"Script output: {done.log}")
     return EXIT_OK
 
 
@@ -594,7 +595,8 @@ def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
 
     count = make_bundle(layout, args.out, url=args.source, branch=args.branch,
                         network_timeout=args.network_timeout, report=_terminal(args))
-    print(f"Wrote {args.out}: the desired state and {count} repositories it pins; on the "
+    print(f"Wrote {args.out}: the desired state and "
+          f"{counted(count, 'repository', 'repositories')} it pins; on the "
           f"car: `lpam sync --bundle {args.out.name}`.")
     return EXIT_OK
 
@@ -621,7 +623,8 @@ def cmd_pin(args: argparse.Namespace, layout: Layout) -> int:
     elif args.dry_run:
         print(f"{path} was not changed (--dry-run).")
     else:
-        print(f"Pinned {len(done)} repositories in {path}; review and commit it.")
+        print(f"Pinned {counted(len(done), 'repository', 'repositories')} in {path}; "
+              "review and commit it.")
     return EXIT_OK
 
 

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.base.errors import LpamError
+from reconciler.base.text import counted
 
 if TYPE_CHECKING:
     from reconciler.base.layout import Layout
@@ -211,7 +212,7 @@ def _act(machine: Machine, flag: str, value: str | None) -> None:
         print(f"Repository {value} removed.")
     elif flag == "p":
         updated = editing.update(machine, options=_options(), report=_report())
-        print(f"Updated: {updated.steps} steps; {updated.app}.")
+        print(f"Updated: {counted(updated.steps, 'step')}; {updated.app}.")
     elif flag in "sk":
         _operate(machine, flag)
 
