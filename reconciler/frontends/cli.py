@@ -26,13 +26,14 @@ from typing import TYPE_CHECKING, Any
 from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS, Layout
-from reconciler.base.text import counted, printable
+from reconciler.base.text import columns, counted, printable
 from reconciler.frontends.console import Calling, Terminal, debug_log, exit_code, terminate
 from reconciler.workflow.defaults import SCRIPT_TIMEOUT
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
     from reconciler.workflow.applying import ApplyOptions
     from reconciler.workflow.events import Event
+    from reconciler.workflow.history import Made
     from reconciler.workflow.machine import Machine
     from schemas.record import HistoryEntry
 
@@ -515,15 +516,31 @@ def cmd_history(args: argparse.Namespace, layout: Layout) -> int:
     if not made:
         print("No history yet: no apply has made an app current.")
         return EXIT_OK
-    sets = len({m.set for m in made}) < len(made)  # several apps: one apply, one set
-    for before, m in zip([None, *made], made):
-        if sets and before is not None and before.set != m.set:
-            print()  # the sets of apps, one block each
-        h = m.entry
-        params = " ".join(f"{k}={v}" for k, v in sorted(h.params.items())) or "-"
-        print(f"{'*' if m.current else ' '} {h.time}  {h.app:<20} {h.generation}  "
-              f"{h.repository}@{h.commit[:12]}  {h.result:<11}  {params}")
+    print("\n".join(history_lines(made)))
     return EXIT_OK
+
+
+HISTORY_HEADER = ("Now", "Time", "App", "Generation", "Repository", "Commit", "Result",
+                  "Params")
+
+
+def history_lines(made: Sequence[Made]) -> list[str]:
+    """`lpam history` as a table: a header, then each generation made current, oldest
+    first, `*` in the first column for what is installed now. Every column is as wide as
+    its widest cell (a long repository name no longer shifts the rest of its row); with
+    several apps, a blank line between the sets of apps, one block per apply."""
+    rows = [["*" if m.current else "", m.entry.time, m.entry.app, m.entry.generation,
+             m.entry.repository, m.entry.commit[:12], m.entry.result,
+             " ".join(f"{k}={v}" for k, v in sorted(m.entry.params.items())) or "-"]
+            for m in made]
+    header, *lines = columns(HISTORY_HEADER, [[printable(c) for c in r] for r in rows])
+    sets = len({m.set for m in made}) < len(made)  # several apps: one apply, one set
+    shown = [header]
+    for before, m, line in zip([None, *made], made, lines):
+        if sets and before is not None and before.set != m.set:
+            shown.append("")  # the sets of apps, one block each
+        shown.append(line)
+    return shown
 
 
 def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:

@@ -103,3 +103,30 @@ def test_operator_actions_are_a_closed_set() -> None:
     assert [str(a) for a in OperatorAction] == ["start", "stop", "restart"]
     with pytest.raises(ValueError):
         OperatorAction("kill")
+
+
+def test_history_is_a_table_whose_columns_stay_put(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`lpam history` had no header, and a long repository name pushed the rest of its
+    row to the right (issue 30, item 14): a header, and each column at one place."""
+    from reconciler.frontends import cli
+
+    world = running_x(tmp_path)
+    record = read_record(world.layout)
+    now = HistoryEntry.of(sole(record), time="2026-11-27T10:00:00+00:00", result="applied")
+    other = now.model_copy(update={"generation": "0123456789ab-cdef0123",
+                                   "time": "2026-11-26T09:00:00+00:00",
+                                   "repository": "a-much-longer-repository-name",
+                                   "params": {"RATE_HZ": "10"}})
+    write_record(world.layout, record.model_copy(update={"history": [other, now]}))
+    monkeypatch.setattr("signal.signal", lambda *args: None)
+    assert cli.main(["--root", str(world.layout.root), "history"]) == 0
+    header, *rows = capsys.readouterr().out.splitlines()
+    assert header.split() == ["Now", "Time", "App", "Generation", "Repository", "Commit",
+                              "Result", "Params"]
+    for name in ("Time", "App", "Generation", "Repository", "Commit", "Result", "Params"):
+        at = header.index(name)
+        assert all(row[at - 1] == " " and row[at] != " " for row in rows), (name, rows)
+    assert rows[0].split()[5:] == ["applied", "RATE_HZ=10"]
+    assert rows[1].startswith("*") and rows[1].split()[-1] == "-"  # installed now
