@@ -156,9 +156,9 @@ class Calling:
 
 class Terminal:
     """Where the use cases' events go in a terminal: notes to stderr, progress to stdout,
-    and of a long command's output (a build, an install) its command line, then at most
-    every few seconds how long it has run and its latest line. Every command a text
-    suggests is spelled by `calling`."""
+    and of a long command's output (a build, an install) its command line, whole (a user
+    may copy it to run it again), then at most every few seconds how long it has run and
+    its latest line. Every command a text suggests is spelled by `calling`."""
 
     EVERY = 5.0
 
@@ -186,17 +186,17 @@ class Terminal:
         now_ = self._clock()
         if line.startswith("$ "):  # a new command: its clock starts
             self._started = self._shown = now_
-            print(f"      {fit(line, 100)}", flush=True)
+            print(f"      {printable(line)}", flush=True)
         elif now_ - self._shown >= self.EVERY:
             self._shown = now_
             print(f"      … {now_ - self._started:.0f} s: {fit(line, 80)}", flush=True)
 
 
 def fit(line: str, width: int) -> str:
-    """`line` in at most `width` printable characters, cut in the middle: the end of a
-    command line (the path, the package) is the part that says most."""
+    """`line` in at most `width` printable characters, cut at its end with "…": what is
+    shown reads as it was printed (a cut in the middle joined two halves of a command
+    into one that does not exist)."""
     text = printable(line)
     if len(text) <= width:
         return text
-    head = width * 2 // 5
-    return f"{text[:head]} … {text[len(text) - (width - head - 3):]}"
+    return f"{text[:width - 1]}…"
