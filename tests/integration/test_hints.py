@@ -8,6 +8,7 @@ it printed, and runs it verbatim from another.
 
 from __future__ import annotations
 
+import json
 import os
 import pty
 import re
@@ -111,15 +112,23 @@ def test_a_resume_hint_and_a_stops_hint_run_as_printed_from_elsewhere(
         assert resumed.returncode == 0, resumed.stderr
         assert "Apply complete" in resumed.stdout
 
+        (here / "my state.yaml").write_text(
+            desired(git_daemon.url("apps.git"), "alpha", MODE="two"))
+        changed = lpam_in(here, *root, "apply", "-f", "my state.yaml", "--yes")
+        assert changed.returncode == 0, changed.stderr
         stopped = lpam_in(here, *root, "stop")
         assert stopped.returncode == 0, stopped.stderr
+        # the hold names the file it holds against as a path that means it anywhere
+        shown = lpam_in(elsewhere, "--root", str(here / "root"), "status", "--json")
+        [hold] = json.loads(shown.stdout)["holds"]
+        assert f"({here / 'my state.yaml'})" in hold["ends"], hold
         [start] = suggested(stopped.stdout)
         assert start.startswith(f"lpam --root {here / 'root'} "), start
         started = verbatim(start, elsewhere)
         assert started.returncode == 0 and "Started alpha" in started.stdout, started.stderr
 
         (here / "my state.yaml").write_text(
-            desired(git_daemon.url("apps.git"), "alpha", MODE="two"))
+            desired(git_daemon.url("apps.git"), "alpha", MODE="three"))
         planned = lpam_in(here, *root, "plan", "-f", "my state.yaml", "-o", "the plan.json")
         assert planned.returncode == 0, planned.stderr
         [apply] = suggested(planned.stdout.split("Saved the plan")[1])
