@@ -109,6 +109,20 @@ def lpam(*args: str, check: bool = True) -> int:
     return code
 
 
+def lpam_says(*args: str) -> str:
+    """`lpam(*args)`, its output shown as ever and returned, for the demo to check."""
+    shown = " ".join(["lpam", *args]).replace(str(TOP) + "/", "")
+    print(f"\n$ {shown}", flush=True)
+    env = dict(os.environ, LPAM_ROOT=str(ROOT), LPAM_SERVICES="supervisor")
+    done = subprocess.run([*LPAM, *args], cwd=TOP, env=env, capture_output=True, text=True,
+                          check=False)
+    print(done.stdout, end="", flush=True)
+    print(done.stderr, end="", file=sys.stderr, flush=True)
+    if done.returncode not in (0, 2):
+        raise SystemExit(f"demo failed: `{shown}` exited {done.returncode}")
+    return done.stdout
+
+
 def switched_desired_state(app: str, params: dict[str, str], name: str,
                            **extra: object) -> Path:
     """The example desired state with another app, comments kept (round-trip YAML)."""
@@ -221,7 +235,10 @@ def gates_on_the_drive() -> None:
     code = lpam("apply", "-f", str(gated), "--yes", check=False)
     if code != 75:
         raise SystemExit(f"demo failed: a moving car should defer the switch (75), not {code}")
-    lpam("status")
+    said = lpam_says("status")
+    if "Last apply: deferred" not in said or "cut off" in said:
+        raise SystemExit("demo failed: status should show the switch as deferred by the "
+                         "gates, not as cut off")
     print("\n   740 s into the drive it has stood since 668.75 s: parked, the switch goes through")
     drive_at(740.0)
     lpam("gates", "-f", str(gated))

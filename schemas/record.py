@@ -26,6 +26,12 @@ Version 6 has one model of apps: a car runs a set of apps keyed by name, and one
 set of one. A rollback's hold names the set it returns to (`hold.targets`) and nothing
 else: version 5's `hold.target` (one app) and `hold.generation` (a name derived from the
 set) are gone.
+
+Version 7 makes the last apply a closed state machine: an apply the update gates deferred
+ends `deferred` (which gates were closed, and when the agent's next pass tries again),
+where version 6 left it `in progress` with a pid that was gone, so that status called it
+killed. Whether an apply `in progress` still runs is never written: it is derived from
+its pid (gone: it was cut off).
 """
 
 from __future__ import annotations
@@ -42,7 +48,7 @@ from pydantic import (
 
 from schemas.generation import GenerationFields
 
-CURRENT_VERSION = 6
+CURRENT_VERSION = 7
 
 AppStatus = Literal["installing", "installed", "starting", "running", "stopping", "uninstalling"]
 """Where the installed app's lifecycle stands. The -ing values are written *before* the
@@ -116,13 +122,19 @@ class Stray(BaseModel):
 
 
 ApplyResult = Literal["applied", "failed", "rolled back"]
-LastResult = Literal["applied", "failed", "rolled back", "in progress", "interrupted"]
+LastResult = Literal["applied", "failed", "rolled back", "in progress", "interrupted",
+                     "deferred"]
+"""How the last apply stands as written. Each is written by one place: `in progress` when
+it begins (recovery.begun), `deferred` when a closed gate ends it before its cutover
+(recovery.deferred), `interrupted` on Ctrl-C or SIGTERM (recovery.interrupted), the rest
+when it ends (recovery.finish). `cut off` is never written: it is an `in progress` whose
+process is gone (a kill, a power cut), derived by whoever reads the record."""
 
 
 class LastApply(BaseModel):
     """How the last apply (or rollback) ended, for `lpam status`: written when it begins
     (`in progress`, with its pid: one whose process is gone was cut off) and when it ends,
-    interrupted (Ctrl-C, SIGTERM) included."""
+    deferred by the gates and interrupted (Ctrl-C, SIGTERM) included."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -133,6 +145,23 @@ class LastApply(BaseModel):
                             "progress")
     command: str | None = Field(default=None, description="how to run it again (`lpam "
                                 "apply -f FILE`): what an interrupted one's hint says")
+    gates: list[str] = Field(default_factory=list, description="a deferred apply: the "
+                             "gates that were closed (vehicle, window, lock)")
+    retry: str | None = Field(default=None, description="a deferred apply: when the "
+                              "agent's next pass tries again (None: nothing tries it "
+                              "again by itself; the next `lpam apply` does)")
+
+    @model_serializer(mode="wrap")
+    def _known_written(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """Only a deferral writes its gates and retry: other results stay as version 6
+        wrote them."""
+        data = handler(self)
+        if isinstance(data, dict):
+            if not data.get("gates"):
+                data.pop("gates", None)
+            if data.get("retry") is None:
+                data.pop("retry", None)
+        return data
 
 
 class DesiredRef(BaseModel):
@@ -265,7 +294,7 @@ class Cutover(BaseModel):
 class StateRecord(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    version: Literal[6] = 6
+    version: Literal[7] = 7
     lineage: str | None = None
     serial: int = 0
     repositories: list[RepositoryRecord] = Field(default_factory=list)

@@ -22,6 +22,7 @@ from schemas.plan import Change
 from schemas.record import AppStatus, Cutover, LastResult
 
 REPORT_VERSION: Literal[1] = 1
+NO_SERVICE = "none"  # LPAM's table and the phone: an app that names no service
 
 
 class _View(BaseModel):
@@ -90,8 +91,10 @@ class CatalogRow(_View):
 
     @property
     def named_service(self) -> str:
-        """The service as LPAM's table showed it: empty when the app names none."""
-        return "" if self.service == "-" else self.service
+        """The service as LPAM's table and the phone show it: `none` when the app names
+        none (no `service` file, no program lpam runs), never an empty field, which reads
+        as a column lost or a value not known."""
+        return NO_SERVICE if self.service == "-" else self.service
 
 
 class HoldView(_View):
@@ -123,12 +126,25 @@ class StrayView(_View):
     pending: str | None
 
 
+LastApplyState = Literal["in progress", "deferred", "interrupted", "cut off", "succeeded",
+                         "failed", "rolled back"]
+"""The last apply as it stands now: one of these, never two. The record's `result`, with
+an apply `in progress` whose process is gone read as `cut off` (never written: derived,
+reconciler/report/build.py `last_state`)."""
+
+
 class LastApplyView(_View):
     time: str
-    result: LastResult
+    result: LastResult = Field(description="as the state record has it")
+    state: LastApplyState = Field(description="as it stands now: `in progress` only while "
+                                  "its process lives, else `cut off`")
     reason: str | None = None
     pid: int | None = None
     command: str | None = None
+    gates: list[str] = Field(default_factory=list, description="deferred: the gates that "
+                             "were closed")
+    retry: str | None = Field(default=None, description="deferred: when the agent's next "
+                              "pass tries again (None: the next `lpam apply` does)")
     shown: str = Field(description="the last apply as it stands now, said")
 
 
@@ -139,8 +155,14 @@ class Unreadable(_View):
 
 
 class Deferral(_View):
+    """The last apply, when a closed update gate deferred its cutover (the state record's
+    last apply, so that an apply after it ends it)."""
+
     time: str
     reason: str
+    gates: list[str] = Field(default_factory=list, description="the gates that were closed")
+    retry: str | None = Field(default=None, description="when the agent's next pass tries "
+                              "again (None: the next `lpam apply` does)")
 
 
 class PlanView(_View):

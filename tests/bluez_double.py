@@ -11,6 +11,9 @@ way bluetoothd relays one: `ReadValue`/`WriteValue` with the phone's device path
 options, `StartNotify`, and the `PropertiesChanged` notifications collected per
 characteristic UUID. `restart` drops the connection and comes back as a new bluetoothd
 that has forgotten every registration, as `systemctl restart bluetooth` would.
+`pause` makes it a busy bluetoothd: it takes that long before reading a registration's
+objects back, and again between taking the registration and answering, so that a test can
+stop lpam inside either window.
 """
 
 from __future__ import annotations
@@ -71,9 +74,11 @@ def plain(value: Any) -> Any:
 class BluezDouble:
     """bluetoothd for one adapter, on the bus at `address`."""
 
-    def __init__(self, address: str, adapter: str = "/org/bluez/hci0") -> None:
+    def __init__(self, address: str, adapter: str = "/org/bluez/hci0", *,
+                 pause: float = 0.0) -> None:
         self.address = address
         self.adapter = adapter
+        self.pause = pause  # seconds, before reading back and before answering
         self.bus: MessageBus | None = None
         self.app: Registration | None = None
         self.advertisement: Registration | None = None
@@ -192,9 +197,13 @@ class BluezDouble:
         bus = self.bus
         call = (msg.interface, msg.member)
         if call == (GATT_MANAGER, "RegisterApplication"):
+            await asyncio.sleep(self.pause)
             reply = await self._register_app(msg)
+            await asyncio.sleep(self.pause)
         elif call == (ADVERTISING_MANAGER, "RegisterAdvertisement"):
+            await asyncio.sleep(self.pause)
             reply = await self._register_advertisement(msg)
+            await asyncio.sleep(self.pause)
         elif call == (GATT_MANAGER, "UnregisterApplication"):
             reply = self._unregister(msg, "app")
         elif call == (ADVERTISING_MANAGER, "UnregisterAdvertisement"):

@@ -92,7 +92,8 @@ class VehicleGate:
                         "the update gates are closed: " + closed,
                         hint="everything is prepared and the running app is untouched; "
                         "the next apply or agent pass tries again (`--wait SECONDS` waits "
-                        "for the gates, `lpam gates` shows them)")
+                        "for the gates, `lpam gates` shows them)",
+                        gates=tuple(s.name for s in states if not s.open))
                 if now - said >= PROGRESS_EVERY:
                     said = now
                     progress("waiting for the gates: " + closed)

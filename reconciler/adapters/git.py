@@ -268,6 +268,27 @@ class GitStore:
         fsync_dir(dest.parent)
         self._sweep(key)
 
+    def repoint(self, key: str, url: str) -> None:
+        """See the `Store` port. The old origin's branches and tags move under
+        refs/lpam/fetched/ (their objects stay reachable), then the config names `url`:
+        after a power cut between the two, the next checkout repoints again. `url` is
+        not reached, so not checked here (the desired state's validation refuses what
+        could not be a git URL)."""
+        with self._open(key) as repo:
+            if repo is None:
+                raise GitError(f"{key} is not in the repository store")
+            heads = repo.refs.as_dict(Ref(b"refs/remotes/origin"))
+            tags = repo.refs.as_dict(Ref(b"refs/tags"))
+            repo.refs.import_refs(Ref(b"refs/lpam/fetched/heads"), heads, prune=True)
+            repo.refs.import_refs(Ref(b"refs/lpam/fetched/tags"), tags, prune=True)
+            for name in heads:
+                repo.refs.remove_if_equals(Ref(b"refs/remotes/origin/" + name), None)
+            for name in tags:
+                repo.refs.remove_if_equals(Ref(b"refs/tags/" + name), None)
+            config = repo.get_config()
+            config.set((b"remote", b"origin"), b"url", url.encode("utf-8"))
+            config.write_to_path()
+
     def renew(self, key: str, url: str) -> Path | None:
         """Clone `url` afresh in place of the key's checkout, which is kept aside (its
         path returned; None when there was none). The store is a cache: a damaged checkout

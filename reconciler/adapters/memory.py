@@ -49,6 +49,7 @@ class MemoryStore:
     aside: dict[str, tuple[str, str | None]] = field(default_factory=dict)
     advertised: dict[str, RemoteRefs] = field(default_factory=dict)  # url → its refs
     seen: dict[str, RemoteRefs] = field(default_factory=dict)  # key → the last fetch's
+    brought: dict[str, str] = field(default_factory=dict)  # key → remote of a repointed one
 
     def origin_url(self, key: str) -> str | None:
         return self.checkouts[key][0] if key in self.checkouts else None
@@ -83,6 +84,7 @@ class MemoryStore:
         self.aside[key] = self.checkouts.pop(key)
         self.damaged.pop(key, None)
         self.fetched.pop(key, None)
+        self.brought.pop(key, None)
         path = Path(f".{slug(key)}~damaged")
         if self.layout is not None:
             path = self.layout.repositories / path.name
@@ -99,7 +101,18 @@ class MemoryStore:
             self.layout.repository_dir(key).mkdir(parents=True, exist_ok=True)
         self.fetched[key] = set(self.remotes[url])
         self.checkouts[key] = (url, self.head(key))
+        self.brought.pop(key, None)
         self.seen[key] = self.ls_remote(url)
+
+    def repoint(self, key: str, url: str) -> None:
+        """See the `Store` port: no remote is asked; the twin goes on reading the files
+        of the remote that brought its commits (`brought`)."""
+        if key not in self.checkouts:
+            raise GitError(f"{key} is not in the repository store")
+        old, head = self.checkouts[key]
+        self.brought.setdefault(key, old)
+        self.checkouts[key] = (url, head)
+        self.seen.pop(key, None)
 
     def fetch_objects(self, key: str, url: str) -> None:
         """Commits of `url` for a plan to read, moving no checkout; a checkout of another
@@ -139,7 +152,7 @@ class MemoryStore:
 
     def _folder(self, key: str, commit: str, folder: str) -> Folder | None:
         """`commit:folder` of the key's origin, once that commit was fetched."""
-        url = self.origin_url(key)
+        url = self.brought.get(key) or self.origin_url(key)
         found = None if url is None else self.remotes[url].get(commit, {}).get(folder)
         return None if found is None or not self.has_commit(key, commit) else found
 
@@ -164,6 +177,7 @@ class MemoryStore:
             shutil.rmtree(self.layout.repository_dir(key), ignore_errors=True)
         self.checkouts.pop(key, None)
         self.fetched.pop(key, None)
+        self.brought.pop(key, None)
 
     def read_file(self, key: str, commit: str, path: str, *,
                   limit: int = READ_LIMIT) -> bytes | None:
@@ -177,6 +191,10 @@ class MemoryStore:
         if len(data) > limit:
             raise GitError(f"{key}: '{path}' is {len(data)} bytes, over {limit}")
         return data
+
+    def folder_files(self, key: str, commit: str, folder: str) -> list[str]:
+        found = self._folder(key, commit, folder)
+        return [] if found is None else sorted(n for n in found[1] if "/" not in n)
 
     def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
         found = self._folder(key, commit, folder)
@@ -324,7 +342,8 @@ class MemoryGate:
                 return self
             progress("waiting for the gates")
         raise Deferred("the update gates are closed: "
-                       + "; ".join(s.describe() for s in states if not s.open))
+                       + "; ".join(s.describe() for s in states if not s.open),
+                       gates=tuple(s.name for s in states if not s.open))
 
     def release(self) -> None:
         self.releases += 1

@@ -33,7 +33,8 @@ _HEADS = "refs/heads/"
 _TAGS = "refs/tags/"
 _PEELED = "^{}"
 _SCHEMES = ("git", "http", "https", "ssh", "file")
-_NETWORK_HINT = "check the URL and the network; nothing on the machine was changed"
+_NETWORK_HINT = ("check the URL and the network, or preview without it: `lpam plan --offline`; "
+                 "nothing on the machine was changed")
 
 
 class Transport:

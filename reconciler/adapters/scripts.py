@@ -30,8 +30,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from reconciler.base.errors import StepError
-from reconciler.base.reading import open_append
+from reconciler.base.errors import DETAIL_LINES, StepError
+from reconciler.base.reading import open_append, tail
 from reconciler.engine.execution.ports import DEFAULT_PATH
 
 PASSED_THROUGH = ("PATH", "HOME", "LANG", "LC_ALL", "TERM", "USER", "LOGNAME", "TZ")
@@ -80,6 +80,7 @@ class ScriptRunner:
         result = self.runs / f"{run}.exit"
         fd = "" if self.lock_fd is None else str(self.lock_fd)
         self._note(f"== {app}: bash {script} (in {app_dir})\n")
+        begun = self._size()  # its output starts here: what a failure shows of it
         try:
             proc = self._spawn(
                 ["bash", "-c", GUARD, "lpam-guard", str(result), fd, "bash", script], app_dir,
@@ -95,6 +96,7 @@ class ScriptRunner:
             raise StepError(
                 f"{app}: {script} did not finish within {self.timeout:g} s and was killed",
                 hint=f"see {self.log}; raise --script-timeout if it needs longer",
+                details=self._output(script, begun),
             ) from None
         except BaseException:  # Ctrl-C, SIGTERM: the script must not outlive lpam
             stop_group(proc)
@@ -106,6 +108,7 @@ class ScriptRunner:
             raise StepError(
                 f"{app}: {script} failed with exit code {code}",
                 hint=f"see its output in {self.log}; fix the script and apply again",
+                details=self._output(script, begun),
             )
         return True
 
@@ -150,6 +153,17 @@ class ScriptRunner:
             stop_group(proc)
             raise
         return code == 0, f"exit code {code} (output in {self.log})"
+
+    def _size(self) -> int:
+        try:
+            return self.log.stat().st_size
+        except OSError:
+            return 0
+
+    def _output(self, script: str, begun: int) -> list[str]:
+        """The script's last lines of output, for the error that explains its failure, as a
+        failed health check shows its unit's (engine/execution/supervision.py log_tail)."""
+        return [f"{script}: {line}" for line in tail(self.log, DETAIL_LINES, since=begun)]
 
     def _note(self, text: str) -> None:
         fd = open_append(self.log)

@@ -26,9 +26,12 @@ and the store would be damaged).
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
+import re
 import signal
+import socket
 import sys
 import threading
 from collections.abc import Callable, Iterator, Mapping
@@ -196,13 +199,68 @@ def _transport_errors() -> tuple[type[Exception], ...]:
             HTTPProxyUnauthorized, StrangeHostname)
 
 
-def reason(exc: BaseException) -> str:
-    """One line saying why a transport failed; the parent adds the URL and a hint."""
+_ERRNO_WORDS = {
+    errno.ECONNREFUSED: "the server refused the connection (nothing listens at {where})",
+    errno.ECONNRESET: "the server at {where} closed the connection",
+    errno.ETIMEDOUT: "the connection to {where} timed out",
+    errno.ENETUNREACH: "the network is unreachable (is this machine offline?)",
+    errno.EHOSTUNREACH: "the host {host} is unreachable",
+    errno.ENETDOWN: "the network is down (is this machine offline?)",
+}
+
+
+def reason(exc: BaseException, url: str = "") -> str:
+    """One line saying why a transport failed, in words (never a library's repr such as
+    urllib3's `HTTPConnectionPool(...): Max retries exceeded` or `[Errno 111]`); the parent
+    adds what failed (fetching URL) and what to try."""
     from dulwich.client import StrangeHostname
 
     if isinstance(exc, StrangeHostname):
         return "the host name looks like a command-line option"
-    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    parsed = urlparse(url)
+    host = parsed.hostname or "the server"
+    try:
+        port = parsed.port
+    except ValueError:
+        port = None
+    where = f"{host}:{port}" if port else host
+    cause = _os_cause(exc)
+    if isinstance(cause, socket.gaierror):
+        return f"the host name {host} is not known (no DNS answer; is this machine offline?)"
+    if isinstance(cause, socket.timeout) and cause.errno is None:
+        return f"the connection to {where} timed out"
+    if cause is not None and cause.errno in _ERRNO_WORDS:
+        return _ERRNO_WORDS[cause.errno].format(where=where, host=host)
+    if cause is not None and cause.strerror:
+        return f"{cause.strerror.lower()} ({where})"
+    return _one_line(str(exc)) or type(exc).__name__
+
+
+def _os_cause(exc: BaseException) -> OSError | None:
+    """The operating system's error beneath a transport failure: dulwich wraps urllib3's
+    MaxRetryError, whose `reason` wraps the socket's error."""
+    seen: set[int] = set()
+    todo: list[BaseException | None] = [exc]
+    while todo:
+        current = todo.pop(0)
+        if current is None or id(current) in seen:
+            continue
+        seen.add(id(current))
+        if isinstance(current, OSError) and (current.errno is not None
+                                             or isinstance(current, socket.timeout)):
+            return current
+        reason_ = getattr(current, "reason", None)
+        todo += [reason_ if isinstance(reason_, BaseException) else None,
+                 current.__cause__, current.__context__]
+    return None
+
+
+def _one_line(text: str) -> str:
+    """A library's or a server's text as one line without its `[Errno N]` prefix or a
+    trailing full stop (the message it ends up in adds its own)."""
+    line = next((part.strip() for part in text.splitlines() if part.strip()), "")
+    line = re.sub(r"\[Errno -?\d+\]\s*", "", line)
+    return "".join(c if c.isprintable() else " " for c in line).rstrip(". ")
 
 
 def _die_with_lpam(conn: Connection) -> None:
@@ -230,10 +288,11 @@ def answer(request: dict[str, str]) -> dict[str, Any]:
         return fetch(request["url"], request["repo"], request.get("skip", ""))
     except _transport_errors() as exc:
         if request["op"] == "push" and refusal(exc):
-            return {"error": reason(exc), "refused": True}
-        return {"error": reason(exc)}
+            return {"error": reason(exc, request["url"]), "refused": True}
+        return {"error": reason(exc, request["url"])}
     except Exception as exc:  # a hostile server's garbage, or a bug: one line
-        return {"error": f"unexpected {type(exc).__name__} in the git client: {reason(exc)}"}
+        return {"error": f"unexpected {type(exc).__name__} in the git client: "
+                f"{reason(exc, request['url'])}"}
 
 
 def serve(conn: Connection, request: dict[str, str], env: dict[str, str]) -> None:

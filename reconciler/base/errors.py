@@ -195,7 +195,13 @@ class Deferred(LpamError):
     """A gate was closed when the cutover was due (the vehicle moving, a lock held, outside
     a window). Not a failure: everything was prepared, the running app is untouched, and the
     next pass tries again. 75 is EX_TEMPFAIL of sysexits(3). Said as `deferred:`, never
-    `error:`: the README tells the user a deferral is not a failure."""
+    `error:`: the README tells the user a deferral is not a failure. `gates`: the names of
+    the gates that were closed (vehicle, window, lock), which the state record keeps."""
 
     exit_code = 75
     word = "deferred"
+
+    def __init__(self, message: str, *, hint: str | None = None,
+                 gates: tuple[str, ...] = ()) -> None:
+        super().__init__(message, hint=hint)
+        self.gates = gates

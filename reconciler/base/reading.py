@@ -112,3 +112,46 @@ def open_append(path: Path, *, mode: int = 0o644) -> int:
         raise ConfigError("is not a regular file; lpam cannot log there", path=path,
                           hint="remove it; lpam creates a real file there")
     return fd
+
+
+TAIL_LIMIT = MIB  # bytes read back from a log's end for its last lines
+
+
+def tail(path: Path, lines: int, *, since: int = 0) -> list[str]:
+    """The last `lines` lines of a log (an app's unit's, or the apply log from byte `since`
+    on: one script's output), read backwards from its end, at most TAIL_LIMIT bytes, without
+    their line ends: what an error shows of a failed app, whoever ran it. A missing file, or
+    one that is not a regular file, has no lines."""
+    fd = None if lines <= 0 else open_regular(path)
+    if fd is None:
+        return []
+    try:
+        end = os.fstat(fd).st_size
+        data = b""
+        start = end
+        floor = max(min(since, end), 0)
+        while start > floor and data.count(b"\n") <= lines and end - start < TAIL_LIMIT:
+            step = min(64 * KIB, start - floor, TAIL_LIMIT - (end - start))
+            start -= step
+            data = os.pread(fd, step, start) + data
+    finally:
+        os.close(fd)
+    parts = data.decode(errors="replace").split("\n")
+    if parts and parts[-1] == "":
+        parts.pop()
+    if start > floor and parts:
+        parts.pop(0)  # begun mid-line
+    return [p.removesuffix("\r") for p in parts[-lines:]]
+
+
+def open_regular(path: Path) -> int | None:
+    """A read descriptor for a log, None unless it is a regular file (a FIFO, a device):
+    a log is a courtesy, never a hang."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | os.O_NOCTTY)
+    except OSError:
+        return None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        return None
+    return fd

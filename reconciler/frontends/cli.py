@@ -19,6 +19,7 @@ import os
 import shlex
 import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -572,14 +573,18 @@ def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_ble(args: argparse.Namespace, layout: Layout) -> int:
-    """Logs to stdout, a line each (systemd's journal adds the time); 0 when stopped."""
+    """Logs to stdout, a line each (systemd's journal adds the time); 0 when stopped,
+    also by a stop that comes while the service still imports (kept until it runs)."""
+    stopping = threading.Event()
+    for number in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(number, lambda signum, frame: stopping.set())
     from reconciler.frontends.ble.serve import serve
 
     def log(line: str) -> None:
         print(printable(line), flush=True)
 
     return serve(_machine(args, layout), bus_address=args.bus, adapter=args.adapter, log=log,
-                 bug=lambda: debug_log(layout))
+                 bug=lambda: debug_log(layout), stopping=stopping)
 
 
 def cmd_install_ble(args: argparse.Namespace, layout: Layout) -> int:

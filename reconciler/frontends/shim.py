@@ -7,7 +7,8 @@ flag calls one workflow function â€” the same ones the Bluetooth service calls â
 rule (lock, gates, validation, health check) is lpam's. Unlike LPAM, it tells the truth:
 exit 0 only on success, each error one line on stderr, a value that looks like an option
 (`-i --upload-pack=x`) refused as a usage error, and no shell anywhere. LPAM's interactive
-menu (no flags) is gone: usage, exit 2.
+menu (no flags) is gone: the usage is printed instead (on stderr, with exit 2: nothing
+was done, as for any usage error), so that whoever typed the bare name learns the flags.
 
 A car may run several apps side by side (issue 22): `-d` says `yes` under Enabled for each
 installed app and `-c` prints each on its own line, as LPAM printed its one; `-i APP`
@@ -54,10 +55,12 @@ LPAM's command line, on top of lpam: each flag edits lpam's default desired stat
 ($LPAM_ROOT/etc/lpam/desired-state.yaml, LPAM_ROOT default /) and applies it, or asks it.
 
   -d               the apps of every repository: a tab-separated table (LPAM's, for bluezone);
-                   Enabled is yes for each installed app
+                   Enabled is yes for each installed app; Service is the app's unit
+                   (`none`: it names none)
   -l               the app names
   -c               the installed apps, one a line, or None
-  -t               each installed app's service, as its service manager sees it
+  -t               each installed app's service, as its service manager sees it: a
+                   line per app, beginning with its name
   -i APP           enable APP and apply (install, start): it replaces the apps that claim a
                    resource APP claims (the panda...) and runs beside the others; in a
                    version-1 desired state (one app) it replaces the app
@@ -76,6 +79,10 @@ The service manager is lpam's choice ($LPAM_SERVICES: systemd or supervisor)."""
 
 class UsageError(Exception):
     """The command line is wrong: nothing was done (exit 2)."""
+
+
+class NoFlag(UsageError):
+    """No flag at all, where LPAM opened its menu: the usage is what helps (exit 2)."""
 
 
 @dataclass
@@ -136,7 +143,8 @@ def _command(pairs: list[tuple[str, str | None]]) -> Command:
     if command.branch is not None and command.repository is None:
         raise UsageError("-b BRANCH goes with -g OWNER/REPO")
     if not command.help and not command.actions and command.repository is None:
-        raise UsageError("no flag given (LPAM's interactive menu is gone)")
+        raise NoFlag("no flag given (LPAM's interactive menu is gone): give one of the "
+                     "flags above")
     return command
 
 
@@ -154,7 +162,9 @@ def table(rows: Sequence[CatalogRow]) -> str:
 def lpam_text(flag: str, shown: StatusReport) -> str:
     """LPAM's answer to a reading flag, rendered from the status report: `-d` the table,
     `-l` the app names, `-c` the installed apps (LPAM's `current:`, which named one), `-t`
-    each installed app's unit as its manager sees it (LPAM's, which had one app)."""
+    each installed app's unit as its manager sees it, one line per app that begins with
+    the app's name: LPAM had one app, and with several a bare unit state says of whom it
+    speaks only to one who knows each app's unit."""
     if flag == "d":
         return table(shown.listed())
     if flag == "l":
@@ -163,8 +173,9 @@ def lpam_text(flag: str, shown: StatusReport) -> str:
         return ("\n".join(a.name for a in shown.installed) or "None") + "\n"
     if not shown.installed:
         return NO_APP_STATE + "\n"
-    return "".join((a.unit.said if a.unit is not None else
-                    f"{a.name} names no service: lpam records it {a.status}") + "\n"
+    return "".join(f"{a.name}: " + (a.unit.said if a.unit is not None else
+                                     "names no service (no `service` file): lpam's record "
+                                     f"says {a.said}") + "\n"
                    for a in shown.installed)
 
 
@@ -272,16 +283,20 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         command = parse(sys.argv[1:] if argv is None else argv)
+    except NoFlag as exc:
+        print(USAGE, file=sys.stderr)
+        _fail(str(exc))
+        return EXIT_USAGE
     except UsageError as exc:
         _fail(f"{exc} (see {PROG} -h)")
         return EXIT_USAGE
-    if command.help:
-        print(USAGE)
-        return EXIT_OK
     signal.signal(signal.SIGTERM, terminate)
 
     def body() -> int:
-        run(_machine(), command)
+        if command.help:  # guarded too: `-h | head` closes stdout early
+            print(USAGE)
+        else:
+            run(_machine(), command)
         return EXIT_OK
 
     return exit_code(

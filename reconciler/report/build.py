@@ -12,11 +12,15 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from reconciler.base.unit import unit_name
+from reconciler.core.planning.model import app_folder
 from schemas.report import (
     CatalogRow,
     Checkout,
+    Deferral,
     HoldView,
     InstalledApp,
+    LastApplyState,
     LastApplyView,
     PlanView,
     RepositoryView,
@@ -41,11 +45,12 @@ def build(seen: Seen, *, plan: Plan | str | None = None,
     that is not known."""
     record = seen.record
     last = record.last_apply
+    state = None if last is None else last_state(last, alive=seen.alive)
     return StatusReport(
         installed=[_installed(a, seen.lives.get(a.name)) for a in record.apps],
         service_manager=seen.manager,
-        last_apply=None if last is None else LastApplyView(
-            **last.model_dump(), shown=last_shown(last, alive=seen.alive)),
+        last_apply=None if last is None or state is None else LastApplyView(
+            **last.model_dump(), state=state, shown=last_shown(last, alive=seen.alive)),
         repositories=[RepositoryView(key=r.key, url=r.url, ref=r.ref, commit=r.commit)
                       for r in record.repositories],
         checkouts_not_running=[Checkout(key=r.key, commit=r.commit, applied_commit=r.applied)
@@ -55,7 +60,7 @@ def build(seen: Seen, *, plan: Plan | str | None = None,
         strays=[StrayView(name=s.name, generation=s.generation, stopped=s.stopped,
                           pending=s.pending) for s in record.strays],
         cutover=record.cutover, serial=record.serial, lineage=record.lineage,
-        agent=seen.agent, override=seen.override, deferred=seen.deferred,
+        agent=seen.agent, override=seen.override, deferred=_deferral(last),
         plan=_plan(plan), gates=gates,
     )
 
@@ -114,15 +119,25 @@ def _row(listing: Listing, app: CatalogApp, seen: Seen) -> CatalogRow:
     mine = seen.record.installed(app.name)
     if mine is None or mine.repository != listing.repository:
         return CatalogRow(repository=listing.repository, ref=listing.ref,
-                          commit=listing.commit, app=app.name, service=app.service or "-",
+                          commit=listing.commit, app=app.name, service=service_of(app),
                           installed=False, running=False, status=None,
                           description=app.description)
     runs, verified = running(mine, seen.lives.get(mine.name))
     return CatalogRow(repository=listing.repository, ref=listing.ref,
                       commit=mine.commit[:12], app=app.name,
-                      service=mine.service or app.service or "-", installed=True,
+                      service=mine.service or service_of(app), installed=True,
                       running=runs, status=said(mine, runs), description=app.description,
                       verified=verified)
+
+
+def service_of(app: CatalogApp) -> str:
+    """The service an app runs as, installed or not: the unit lpam writes for a scriptless
+    app (named after its folder, as staging names it), else the one its `service` file
+    names; `-` when it names none. Before, an app not installed showed none of lpam's
+    units, so LPAM's table had an empty Service for every scriptless app not installed."""
+    if app.command is not None or app.launch is not None:
+        return unit_name(app_folder(app.path))
+    return app.service or "-"
 
 
 def holds(record: StateRecord) -> list[HoldView]:
@@ -146,15 +161,47 @@ def holds(record: StateRecord) -> list[HoldView]:
     return found
 
 
-def last_shown(last: LastApply, *, alive: bool) -> str:
-    """The last apply as it stands: one `in progress` whose process is gone was cut off
-    (a kill, a power cut), and says how to go on."""
-    why = f": {last.reason}" if last.reason else ""
+def last_state(last: LastApply, *, alive: bool) -> LastApplyState:
+    """The last apply's one state now: the record's result, except that an apply `in
+    progress` whose process is gone was cut off (`alive`: its process lives and holds
+    the lock, reconciler/report/gather.py)."""
     if last.result == "in progress":
-        if alive:
-            return f"in progress since {last.time} (pid {last.pid})"
+        return "in progress" if alive else "cut off"
+    if last.result == "applied":
+        return "succeeded"
+    return last.result
+
+
+def last_shown(last: LastApply, *, alive: bool) -> str:
+    """The last apply as it stands, said from its one state: a cut-off one says how to go
+    on; a deferred one which gates were closed and what tries again — never to resume a
+    desired state that may no longer be the one wanted."""
+    state = last_state(last, alive=alive)
+    why = f": {last.reason}" if last.reason else ""
+    if state == "in progress":
+        return f"in progress since {last.time} (pid {last.pid})"
+    if state == "cut off":
         return (f"cut off (began {last.time}; lpam was killed or the power failed): "
                 f"`{last.command or 'lpam apply'}` goes on from where it stood")
+    if state == "deferred":
+        return (f"deferred at {last.time}: the update gates were closed{why}; nothing on "
+                f"the running app changed; {retry_said(last.retry)}")
     again = f"; `{last.command}` goes on from where it stood" \
-        if last.result == "interrupted" and last.command else ""
+        if state == "interrupted" and last.command else ""
     return f"{last.result} at {last.time}{why}{again}"
+
+
+def retry_said(retry: str | None) -> str:
+    """What tries a deferred apply again, and when."""
+    if retry is not None:
+        return f"the agent's next pass tries again at about {retry}"
+    return "the next `lpam apply` tries again (`lpam gates` shows the gates now)"
+
+
+def _deferral(last: LastApply | None) -> Deferral | None:
+    """The last apply, if the gates deferred it: the record's word, so that any apply
+    after it (one with nothing to do included) ends it."""
+    if last is None or last.result != "deferred":
+        return None
+    return Deferral(time=last.time, reason=last.reason or "", gates=list(last.gates),
+                    retry=last.retry)

@@ -1,6 +1,7 @@
 """What the status report is built from, read once: the state record, each installed
 app's unit as its manager answers, the catalogs and app files as committed, the agent's
-status, a local override, a deferral, and whether an apply in progress still lives.
+status, a local override, and whether an apply in progress still lives (a deferral is
+the record's last apply, reconciler/report/build.py).
 
 All of the report's reading is here, so that reconciler/report/build.py decides from
 values alone. The catalog and the app files (`service`, `description`…) are read from the
@@ -27,7 +28,7 @@ from reconciler.base.layout import Layout
 from reconciler.core.documents import parse_catalog
 from reconciler.engine.records.state import read_agent_status, read_override, read_record
 from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
-from schemas.report import Deferral, Unreadable
+from schemas.report import Unreadable
 
 if TYPE_CHECKING:
     from reconciler.base.unit import UnitState
@@ -73,7 +74,6 @@ class Seen:
     alive: bool = False
     agent: AgentStatus | Unreadable | None = None
     override: LocalOverride | Unreadable | None = None
-    deferred: Deferral | None = None
 
 
 def gather(layout: Layout, *, store: Objects | None = None,
@@ -95,7 +95,7 @@ def gather(layout: Layout, *, store: Objects | None = None,
     found = () if store is None or not listed else tuple(listings(record, store))
     return Seen(record=record, listings=found, lives=lives,
                 manager=manager, alive=_alive(layout, record), agent=_agent(layout),
-                override=_override(layout), deferred=_deferred(layout))
+                override=_override(layout))
 
 
 def listings(record: StateRecord, store: Objects) -> list[Listing]:
@@ -162,14 +162,17 @@ def _described(store: Objects, key: str, commit: str, folder: str,
 
 
 def _alive(layout: Layout, record: StateRecord) -> bool:
-    """An apply `in progress` whose process is gone was cut off (a kill, a power cut)."""
+    """An apply `in progress` lives while its process does and holds the lock; one whose
+    process is gone was cut off (a kill, a power cut) — even while a script it started
+    still holds the lock (that script's note names the dead apply's pid)."""
     last = record.last_apply
     if last is None or last.result != "in progress" or last.pid is None:
         return False
     from reconciler.base.process import alive
-    from reconciler.engine.execution.lock import holder
+    from reconciler.engine.execution.lock import Holding, holder
 
-    return alive(last.pid) and holder(layout) is not None
+    note = holder(layout)
+    return note is not None and alive(last.pid) and Holding.of(note).pid in (None, last.pid)
 
 
 def _override(layout: Layout) -> LocalOverride | Unreadable | None:
@@ -186,11 +189,3 @@ def _agent(layout: Layout) -> AgentStatus | Unreadable | None:
         return read_agent_status(layout)
     except LpamError as exc:
         return Unreadable(error=exc.message)
-
-
-def _deferred(layout: Layout) -> Deferral | None:
-    """The last apply, when a closed update gate deferred its cutover (from the journal)."""
-    from reconciler.engine.records.journal import deferral
-
-    found = deferral(layout)
-    return None if found is None else Deferral(time=found[0], reason=found[1])

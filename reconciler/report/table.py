@@ -37,9 +37,6 @@ def render(report: StatusReport) -> str:
               f"{printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
               "anew." for r in report.apps if r.damage is not None]
     lines += _footer(report) + _agent(report)
-    if report.deferred is not None:
-        lines.append(f"Cutover deferred at {report.deferred.time} (the update gates): "
-                     f"{printable(report.deferred.reason)}")
     if not report.apps:
         return "\n".join(
             ["No app repositories. Write a desired state and run `lpam apply`.", *lines])
@@ -85,20 +82,29 @@ def _app_line(app: InstalledApp) -> str:
 
 
 def _cutover(report: StatusReport) -> list[str]:
-    """An apply a fault cut off mid-cutover, and a rollback it had begun: what the next
-    apply owes the car."""
+    """The cutover the record keeps, said from the last apply's one state: the live
+    apply's own while it runs (never "cut off" beside "in progress"); otherwise what a
+    fault, a Ctrl-C or a failure left, which the next apply owes the car."""
     cutover = report.cutover
     if cutover is None:
         return []
     back = ", ".join(a.name for a in cutover.previous) or "no app"
+    state = report.last_apply.state if report.last_apply is not None else "cut off"
     rollback = cutover.rollback
+    if state == "in progress":
+        if rollback is not None:
+            return [printable(f"Rolling back to {back} since {rollback.time}: "
+                              f"{rollback.reason}.")]
+        return [printable(f"Cutover under way since {cutover.began}: it returns to {back} "
+                          "if the new app fails.")]
+    ended = {"cut off": "cut off", "interrupted": "interrupted"}.get(state, "left unfinished")
     if rollback is not None:
         failed = ", ".join(a.name for a in rollback.failed) or "the new app"
         return [printable(
-            f"Rollback cut off: {failed} failed ({rollback.reason}) at {rollback.time}, and "
-            f"the rollback to {back} did not finish: the next `lpam apply` finishes it.")]
+            f"Rollback {ended}: {failed} failed ({rollback.reason}) at {rollback.time}, "
+            f"and the rollback to {back} did not finish: the next `lpam apply` finishes it.")]
     return [printable(
-        f"Apply cut off mid-cutover (began {cutover.began}): the next `lpam apply` goes on "
+        f"Apply {ended} mid-cutover (began {cutover.began}): the next `lpam apply` goes on "
         f"from here, and returns to {back} if the new app fails.")]
 
 

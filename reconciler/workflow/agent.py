@@ -72,7 +72,8 @@ class Agent:
                   report: Report) -> Agent:
         """The agent of `lpam agent`: its passes wait for closed gates as its settings say."""
         return cls(machine, config, report=report,
-                   options=replace(options, wait=config.gate_wait_seconds))
+                   options=replace(options, wait=config.gate_wait_seconds,
+                                   retry_after=config.interval_seconds))
 
     def wait(self, seconds: float) -> bool:
         return self.stop.wait(seconds)
@@ -80,8 +81,10 @@ class Agent:
     def run(self, *, once: bool = False) -> int:
         """Passes until stopped (exit 0), or one pass (its exit code) when `once`."""
         failures = 0
+        # one pass has no next one: a deferral it records names none
+        options = replace(self.options, retry_after=None) if once else self.options
         while not self.stop.is_set():
-            done = sync(self.machine, self.config, report=self.report, options=self.options)
+            done = sync(self.machine, self.config, report=self.report, options=options)
             self.passes.append(done)
             if once:
                 return done.code

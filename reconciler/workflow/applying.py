@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from reconciler.base.errors import LpamError
+from reconciler.base.errors import LpamError, StateWriteError
 from reconciler.base.layout import KEEP_GENERATIONS
 from reconciler.workflow.defaults import LOCK_TIMEOUT, SCRIPT_TIMEOUT
 from reconciler.workflow.events import Planned, Progress, Report
@@ -37,6 +37,7 @@ class ApplyOptions:
     release: bool = False  # end a rollback's hold first
     wait: float = 0.0  # seconds the cutover may wait for closed gates to open
     resume: str = "lpam apply"  # the command that resumes it, as the user would type it
+    retry_after: float | None = None  # the agent's next pass tries a deferral again then
 
     def lock_wait(self, default: float = LOCK_TIMEOUT) -> float:
         """How long to wait for the apply lock: `--lock-timeout`, else `default`."""
@@ -79,6 +80,7 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
                             hint="fetch them first (`lpam sync --fetch-only` where there is "
                             "network, or a bundle); nothing was changed")
         if not made.steps and not finishes_rollback(made):
+            _settle(machine, made, desired_ref(desired, str(path)))
             return Applied(0, standing(machine))
         if not confirm(made):
             return Applied(0, standing(machine), cancelled=True)
@@ -119,6 +121,33 @@ def _end_override(machine: Machine, options: ApplyOptions, report: Report) -> Fo
         if override.end(machine, report) is None:
             return None
     return applied_desired(machine)
+
+
+def _settle(machine: Machine, made: Plan, desired: DesiredRef) -> None:
+    """Nothing to do: a deferred, interrupted or cut-off apply before this one no longer
+    applies (engine/execution/recovery.py `settled`), and its journal ends with it."""
+    import uuid
+
+    from reconciler.engine.execution.recovery import settled
+    from reconciler.engine.records.journal import Journal
+    from reconciler.engine.records.state import read_record, write_record
+
+    now = machine.clock()
+    record = settled(read_record(machine.layout), now=now.isoformat(timespec="seconds"),
+                     desired=desired)
+    if record is None:
+        return
+    try:
+        write_record(machine.layout, record)
+    except OSError as exc:  # the machine matches; only the old words stay (a full disk)
+        raise StateWriteError(f"cannot write the state record: {exc.strerror or exc}",
+                              path=machine.layout.state_record) from None
+    journal = Journal(machine.layout, apply_id=str(uuid.uuid4()), plan=made.fingerprint)
+    try:  # advisory, as ever: the record is what lpam trusts
+        journal.open(now)
+        journal.close(now)
+    except (OSError, LpamError):
+        pass
 
 
 def finishes_rollback(made: Plan) -> bool:
@@ -164,7 +193,8 @@ def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
     ctx, log = machine.context(store, lock, command="apply",
                                script_timeout=options.script_timeout, report=report,
                                gate=gate, gate_wait=options.wait, listener=listener,
-                               resume=options.resume, desired=desired)
+                               resume=options.resume, desired=desired,
+                               retry_after=options.retry_after)
     execute(made, ctx, progress=lambda text: report(Progress(text)),
             keep=options.keep_generations)
     return Applied(len(made.steps), standing(machine, ctx.record.apps), log)

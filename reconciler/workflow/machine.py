@@ -132,7 +132,8 @@ class Machine:
     def context(self, store: GitStore, lock: Lock, *, command: str, script_timeout: float,
                 report: Report, gate: Gate | None = None, gate_wait: float = 0.0,
                 listener: Listener | None = None, resume: str | None = None,
-                desired: DesiredRef | None = None) -> tuple[Context, Path]:
+                desired: DesiredRef | None = None,
+                retry_after: float | None = None) -> tuple[Context, Path]:
         """What the steps of one run may touch, and the log of its scripts and commands."""
         from reconciler.adapters.catkin import find_underlay
         from reconciler.adapters.folders import DiskFolders
@@ -150,7 +151,7 @@ class Machine:
             deps=self.deps, log=CommandLog(log, report), stop_requested=self.stop_requested,
             gate=gate, gate_wait=gate_wait, listener=listener,
             command=resume or f"lpam {command}", desired=desired, underlay=find_underlay,
-            folders=DiskFolders(layout=self.layout, store=store),
+            folders=DiskFolders(layout=self.layout, store=store), retry_after=retry_after,
         )
         return ctx, log
 

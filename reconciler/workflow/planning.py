@@ -43,9 +43,15 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
                         "after a fetch", hint="drop --offline to save an exact plan")
     busy = holder(machine.layout) if offline else None
     if not offline:
+        wait = LOCK_TIMEOUT if lock_timeout is None else lock_timeout
+        held = holder(machine.layout)
+        if held is not None:  # say why the plan is silent meanwhile, in apply's words
+            from reconciler.engine.execution.lock import Holding
+
+            report(Note(f"waiting up to {wait:g} s for the apply lock, held by "
+                        f"{Holding.of(held).describe()}"))
         try:
-            with apply_lock(machine.layout,
-                            timeout=LOCK_TIMEOUT if lock_timeout is None else lock_timeout):
+            with apply_lock(machine.layout, timeout=wait):
                 _, made = prepare(machine, path, desired, fetch=Fetch.OBJECTS, report=report,
                                   places=places)
                 if out is not None:
@@ -110,14 +116,27 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     observed = replace(observed, record=unheld)
     report(Phase("observe"))
     if busy is not None:
-        report(Note(f"an apply is in progress ({busy}); this plan shows the machine as it "
-                    "stands now, part-way through it"))
+        report(Note(busy_note(busy)))
     made = make_plan(targets, observed, now=machine.clock(), lpam_version=__version__,
                      offline=fetch is Fetch.OFFLINE)
     report(Phase("plan"))
     if busy is None and observed.interrupted:
         report(Note(interrupted_note(observed.interrupted, made)))
     return store, made
+
+
+def busy_note(busy: str) -> str:
+    """What a plan made beside the lock's holder says: who holds it, worded as `apply`
+    words it (a script of an apply that has ended is no apply in progress), and that the
+    plan fell back to what is local."""
+    from reconciler.engine.execution.lock import Holding
+
+    holding = Holding.of(busy)
+    where = "as it stands now" if holding.orphaned else \
+        "as it stands now, part-way through that apply"
+    return (f"the apply lock is held by {holding.describe()}: this plan was made offline, "
+            f"from what the store already holds (nothing fetched), and shows the machine "
+            f"{where}")
 
 
 def refuse_shared_claims(path: Path, places: Sequence[tuple[int, int]],

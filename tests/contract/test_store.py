@@ -122,6 +122,31 @@ def test_an_unreachable_remote_is_a_git_error_and_changes_nothing(
     assert store.origin_url(KEY) == remote.url and store.head(KEY) == remote.first
 
 
+def test_repoint_needs_no_remote_and_forgets_what_the_old_one_advertised(
+    world: tuple[Resolving, Remote, Layout], tmp_path: Path,
+) -> None:
+    """A pinned repository moved to another URL: the commits it holds stay readable, the
+    new URL is its origin without the network, and the old origin's branches and tags are
+    not read as the new one's (an offline plan would follow them)."""
+    store, remote, _ = world
+    store.fetch(KEY, remote.url)
+    store.checkout(KEY, remote.first)
+    unreachable = remote.url.replace("apps.git", "moved.git")
+    store.repoint(KEY, unreachable)
+    assert store.origin_url(KEY) == unreachable and store.head(KEY) == remote.first
+    assert store.has_commit(KEY, remote.second)
+    assert store.folder_tree(KEY, remote.second, "alpha") == remote.trees[remote.second]
+    assert store.export_folder(KEY, remote.second, "alpha", tmp_path / "gen") == \
+        remote.trees[remote.second]
+    seen = store.local_refs(KEY)
+    assert seen is not None and seen.resolve("main") is None and seen.resolve("v1") is None
+    store.checkout(KEY, remote.second)
+    assert store.head(KEY) == remote.second
+    store.fetch(KEY, remote.url)  # back at the old URL: fetched anew, its refs again
+    seen = store.local_refs(KEY)
+    assert seen is not None and seen.resolve("main") == remote.second
+
+
 def test_remove_forgets_the_checkout(world: tuple[Resolving, Remote, Layout]) -> None:
     store, remote, layout = world
     store.fetch(KEY, remote.url)
@@ -263,6 +288,8 @@ def test_a_folders_tree_and_where_the_checkout_is(
     store.fetch(KEY, remote.url)
     assert store.folder_tree(KEY, remote.first, "alpha") == remote.trees[remote.first]
     assert store.folder_tree(KEY, remote.first, "nowhere") is None
+    assert store.folder_files(KEY, remote.first, "alpha") == ["run.sh"]
+    assert store.folder_files(KEY, remote.first, "nowhere") == []
     assert store.read_file(KEY, remote.first, "alpha/run.sh") == b"echo one\n"
     with pytest.raises(GitError):
         store.read_file(KEY, remote.first, "alpha/run.sh", limit=4)

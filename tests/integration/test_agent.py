@@ -19,6 +19,7 @@ import pytest
 from reconciler.base.layout import Layout
 from reconciler.core.documents import load_agent
 from reconciler.workflow.agent import Agent, next_wait
+from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.events import Event, Progress
 from reconciler.workflow.machine import Machine
 from tests.contract.test_services import wait_for
@@ -158,12 +159,25 @@ def test_a_deferred_pass_is_no_failure_and_the_next_pass_tries_again(
     fleet.commit("beta, at night only", {"desired-state.yaml": fleet_state("beta") + (
         f"gates: {{on_no_signal: allow, windows: ['{window}']}}\n")})
     fleet.push()
-    agent = agent_for(car)
+    layout = Layout(car.root)
+    agent = Clocked.following(Machine.at(layout, services="supervisor", network_timeout=10),
+                              load_agent(layout.agent_config), options=ApplyOptions(),
+                              report=lambda e: None)  # as `lpam agent` makes it
+    assert isinstance(agent, Clocked)
+    agent.draw, agent.waited = lambda: 0.5, []
     assert agent.run() == 0
     assert [p.result for p in agent.passes] == ["deferred", "deferred"]  # tried again
     assert agent.waited == [300, 300]  # no backoff
+    shown = car("status").stdout  # deferred, with when the next pass tries (issue 30)
+    assert "Last apply: deferred at" in shown and "outside" in shown, shown
+    assert "the agent's next pass tries again at about" in shown
+    assert car.status()["last_apply"]["retry"] is not None
     done = car("sync")
     assert done.returncode == 75 and "outside" in done.stderr, done.stderr
     status = car.status()
+    assert status["last_apply"]["state"] == "deferred"
+    assert status["last_apply"]["retry"] is None  # a pass of its own: nothing tries again
+    assert car("agent", "--once").returncode == 75  # one pass: no next one either
+    assert car.status()["last_apply"]["retry"] is None
     assert status["agent"]["last_attempt"]["result"] == "deferred"
     assert status["app"]["name"] == "alpha" and status["app"]["running"] is True

@@ -133,6 +133,8 @@ def test_a_phone_checks_switches_through_a_long_install_and_edits_repositories(
                 "service": listed["ticker"]["service"], "enabled": "yes", "running": "yes",
                 "description": "ticks (°C → CAN)"}
             assert (listed["slow"]["enabled"], listed["slow"]["running"]) == ("no", "no")
+            assert listed["ticker"]["service"] == "lpam-app-ticker"
+            assert listed["slow"]["service"] == "none"  # no `service` file: said, not blank
 
             loop = asyncio.get_running_loop()
             times: list[float] = []

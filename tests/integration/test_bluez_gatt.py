@@ -266,7 +266,8 @@ def test_waits_for_bluetoothd_then_registers(bus: str) -> None:
             await asyncio.sleep(2)  # retries at 0.5, 1, 2 s: the reason is logged once
             assert lines == ["cannot register the GATT application on /org/bluez/hci0: "
                              "bluetoothd is not running (nobody owns org.bluez on the "
-                             "system bus); retrying"]
+                             "system bus); retrying in 0.5 s, then at longer intervals up "
+                             "to 10 s; said again only when the reason changes"]
             async with bluetoothd(bus) as double:
                 await double.registered(timeout=3)
 
@@ -283,7 +284,9 @@ def test_a_missing_adapter_is_reported_and_retried(bus: str) -> None:
             assert double.app is None
             assert [ln for ln in lines if "hci0" in ln] == [
                 "cannot register the GATT application on /org/bluez/hci0: bluetoothd has "
-                "no adapter /org/bluez/hci0 (is the controller up?); retrying"]
+                "no adapter /org/bluez/hci0 (is the controller up?); retrying in 0.5 s, "
+                "then at longer intervals up to 10 s; said again only when the reason "
+                "changes"]
 
     scenario(body)
 

@@ -35,7 +35,7 @@ def bad_inputs(url: str, closed: str) -> list[tuple[str, bytes, str]]:
         ("dash url", desired("-oProxyCommand=x", "alpha").encode(), ":3:5:"),
         ("shell ref", desired(url, "alpha", ref="'$(reboot)'").encode(), ":4:5:"),
         ("dash ref", desired(url, "alpha", ref="--force").encode(), ":4:5:"),
-        ("unreachable", desired(closed, "alpha").encode(), "Connection refused"),
+        ("unreachable", desired(closed, "alpha").encode(), "the server refused the connection"),
         ("missing ref", desired(url, "alpha", ref="nope").encode(), "not found"),
         ("unknown app", desired(url, "gamma").encode(), "not in the catalog"),
     ]

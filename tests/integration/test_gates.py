@@ -133,7 +133,7 @@ def test_a_moving_car_defers_the_switch_and_a_parked_one_lets_it_through(
     status = lpam.status()
     assert status["app"]["name"] == "alpha" and status["app"]["running"] is True
     assert "moving" in status["deferred"]["reason"]
-    assert "Cutover deferred at" in lpam("status").stdout
+    assert "Last apply: deferred at" in lpam("status").stdout
     csv_at(lpam, 720.0)  # parked
     done = lpam("apply", "--yes")
     assert done.returncode == 0, done.stderr

@@ -27,7 +27,7 @@ import pytest
 from reconciler.adapters.git import GitStore
 from reconciler.base.errors import GitError
 from reconciler.base.layout import Layout
-from tests.gitserver import RepoBuilder, free_port
+from tests.gitserver import RepoBuilder, closed_port, free_port
 from tests.hostile_servers import GIT_DRIP, HTTP_DRIP, HostileServer
 
 KEY = "lab/apps"
@@ -284,6 +284,25 @@ def test_credentials_never_appear_in_errors(layout: Layout) -> None:
     for error in (refused, unusable):
         assert "s3cret" not in error.message and "t0ken" not in error.message
     assert "***@127.0.0.1" in refused.message
+
+
+@pytest.mark.parametrize("scheme", ["git", "http", "https"])
+def test_a_refused_connection_is_said_in_words(layout: Layout, scheme: str) -> None:
+    """The field trial read urllib3's `HTTPConnectionPool(...): Max retries exceeded ...
+    [Errno 111] Connection refused` and a bare `[Errno 111]`: what failed (fetching the
+    URL), where (the host and port) and what to try, in words, on one line."""
+    store = GitStore(layout, timeout=10)
+    with closed_port() as port:
+        url = f"{scheme}://127.0.0.1:{port}/lab/apps.git"
+        for operation, action in ((partial(store.fetch, KEY, url), "fetch"),
+                                  (partial(store.ls_remote, url),
+                                   "list the branches and tags of")):
+            error = assert_fails_in_time(operation, "refused")
+            assert error.message == (f"cannot {action} {url}: the server refused the "
+                                     f"connection (nothing listens at 127.0.0.1:{port})")
+            assert error.hint is not None and "`lpam plan --offline`" in error.hint
+            assert "?" not in error.render()
+    assert_store_untouched(layout)
 
 
 def test_a_local_url_that_is_not_a_directory_is_refused(layout: Layout, tmp_path: Path) -> None:

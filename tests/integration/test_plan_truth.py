@@ -154,7 +154,7 @@ def test_a_plan_beside_a_running_apply_says_so_and_a_saved_plan_waits_for_the_lo
         pids = descendants(apply.pid)
         beside = lpam("plan", "--lock-timeout", "0.3")
         assert beside.returncode == 0, beside.stderr
-        assert "an apply is in progress" in beside.stderr and "start.sh" in beside.stderr
+        assert "an apply in progress" in beside.stderr and "start.sh" in beside.stderr
         assert "interrupted" not in beside.stderr
         saved = lpam("plan", "--out", str(tmp_path / "p.json"), "--lock-timeout", "0.3")
         assert saved.returncode == 1 and "another lpam apply holds" in saved.stderr

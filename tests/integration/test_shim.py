@@ -129,7 +129,7 @@ def test_the_table_is_lpams_and_bluezone_reads_it(shim: Shim) -> None:
     lines = out.split("\n")
     assert lines[0] == HEADER and lines[-1] == ""
     assert lines[1] == "fleet/apps\tmain\tticker\tlpam-app-ticker\tyes\tyes\t\"ticks\""
-    assert lines[2].startswith("fleet/apps\tmain\ttocker\t\tno\tno\t\"")
+    assert lines[2].startswith("fleet/apps\tmain\ttocker\tlpam-app-tocker\tno\tno\t\"")
     assert out.isascii()
     rows = bluezone_rows(subprocess.run(
         [sys.executable, "-m", "reconciler.frontends.shim", "-d"], capture_output=True, check=True,
@@ -137,14 +137,16 @@ def test_the_table_is_lpams_and_bluezone_reads_it(shim: Shim) -> None:
     assert rows == [
         {"repository": "fleet/apps", "branch": "main", "app": "ticker",
          "service": "lpam-app-ticker", "enabled": "yes", "running": "yes", "description": "ticks"},
-        {"repository": "fleet/apps", "branch": "main", "app": "tocker", "service": "",
-         "enabled": "no", "running": "no", "description": TOCKER.replace('"', "")},
-        {"repository": "fleet/apps", "branch": "main", "app": "crasher", "service": "",
-         "enabled": "no", "running": "no", "description": ""},
+        # not installed: the unit lpam will run it as, never an empty Service
+        {"repository": "fleet/apps", "branch": "main", "app": "tocker",
+         "service": "lpam-app-tocker", "enabled": "no", "running": "no",
+         "description": TOCKER.replace('"', "")},
+        {"repository": "fleet/apps", "branch": "main", "app": "crasher",
+         "service": "lpam-app-crasher", "enabled": "no", "running": "no", "description": ""},
     ]
     assert shim.ok("-l") == "ticker tocker crasher\n"
     assert shim.ok("-c") == "ticker\n"
-    assert shim.ok("-t") == "unit lpam-app-ticker active (running)\n"
+    assert shim.ok("-t") == "ticker: unit lpam-app-ticker active (running)\n"
     # clustered as getopts reads them, in the order given
     assert shim.ok("-cl") == "ticker\nticker tocker crasher\n"
 
@@ -186,7 +188,11 @@ def test_refusals_change_nothing_and_exit_non_zero(shim: Shim) -> None:
     assert "-b BRANCH goes with -g" in shim.refused("-b", "main", code=2)
     assert "unknown option -x" in shim.refused("-x", code=2)
     assert "needs a value" in shim.refused("-i", code=2)
-    assert "interactive menu" in shim.refused(code=2)
+    bare = shim()  # LPAM's menu is gone: the usage says what to type instead
+    assert (bare.returncode, bare.stdout) == (2, ""), bare
+    assert bare.stderr.startswith("usage: libpanda-app-manager [-d]") and "  -i APP " in \
+        bare.stderr and bare.stderr.splitlines()[-1].startswith(
+            "libpanda-app-manager: error: no flag given"), bare.stderr
     assert "unexpected argument" in shim.refused("-c", "extra", code=2)
     # an earlier flag's failure stops the later ones
     assert "not in the catalog" in shim.refused("-i", "gamma", "-u")
@@ -222,7 +228,7 @@ def test_u_s_k_and_t(shim: Shim) -> None:
     pid = running_pid(shim)
     assert "stays stopped" in shim.ok("-k")
     assert gone(pid) and shim.unit()["active"] == "inactive"
-    assert shim.ok("-t") == "unit lpam-app-ticker inactive (stopped)\n"
+    assert shim.ok("-t") == "ticker: unit lpam-app-ticker inactive (stopped)\n"
     shim.ok("-s")
     running_pid(shim)
     assert shim.ok("-u").splitlines()[-1] == "No app enabled; no app is installed."
@@ -292,7 +298,10 @@ def test_on_a_fleet_car_an_edit_is_a_local_override_that_p_ends(car: Lpam, fleet
     try:
         assert car("sync").returncode == 0
         assert shim.ok("-c") == "alpha\n" and not shim.desired.exists()
-        assert [r["app"] for r in bluezone_rows(shim.ok("-d").encode())] == ["alpha", "beta"]
+        listed = bluezone_rows(shim.ok("-d").encode())
+        assert [r["app"] for r in listed] == ["alpha", "beta"]
+        # LPAM's Service: the app's `service` file, installed (alpha) or not (beta)
+        assert [r["service"] for r in listed] == ["can", "can"]
         shim.ok("-i", "beta")
         assert shim.ok("-c") == "beta\n"
         first = shim.desired.read_text().splitlines()[0]

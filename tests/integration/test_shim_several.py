@@ -103,8 +103,8 @@ def test_every_installed_app_is_enabled_in_the_table_and_on_the_phone(car: Shim)
     assert enabled(car) == table
     assert phone_rows(car) == table
     assert car.ok("-c") == "driver\nticker\n"
-    assert car.ok("-t") == "unit lpam-app-driver active (running)\n" \
-        "unit lpam-app-ticker active (running)\n"
+    assert car.ok("-t") == "driver: unit lpam-app-driver active (running)\n" \
+        "ticker: unit lpam-app-ticker active (running)\n"
     assert car.ok("-l") == "driver pilot ticker tocker\n"
 
 

@@ -171,7 +171,7 @@ def test_a_tab_or_newline_in_a_value_cannot_split_bluezones_columns() -> None:
                    running=False, description="one\ttwo\nthree")
     out = table([row])
     lines = bluezone(out).split("\n")[1:-1]
-    assert lines == ['o/r\tmain\ta\t\tyes\tno\t"one two three"']
+    assert lines == ['o/r\tmain\ta\tnone\tyes\tno\t"one two three"']  # no service: said
 
 
 def test_an_edit_never_writes_over_a_change_made_while_it_waited(machine: Machine) -> None:

@@ -23,6 +23,7 @@ from migrations import (
     state_record_v3_to_v4,
     state_record_v4_to_v5,
     state_record_v5_to_v6,
+    state_record_v6_to_v7,
     upgrade,
 )
 from migrations.step import MigrationError
@@ -46,6 +47,7 @@ STEP_FIXTURES = {
     ("state-record", "3"): FIXTURES / "state-record" / "v3_to_v4",
     ("state-record", "4"): FIXTURES / "state-record" / "v4_to_v5",
     ("state-record", "5"): FIXTURES / "state-record" / "v5_to_v6",
+    ("state-record", "6"): FIXTURES / "state-record" / "v6_to_v7",
     ("agent-status", "1"): FIXTURES / "agent-status" / "v1_to_v2",
     ("plan", "1"): FIXTURES / "plan" / "v1_to_v2",
     ("generation-meta", "0"): FIXTURES / "generation-meta" / "v0_to_v1",
@@ -66,6 +68,7 @@ RECORD_V3_PAIRS = pairs(STEP_FIXTURES[("state-record", "2")])
 RECORD_V4_PAIRS = pairs(STEP_FIXTURES[("state-record", "3")])
 RECORD_V5_PAIRS = pairs(STEP_FIXTURES[("state-record", "4")])
 RECORD_V6_PAIRS = pairs(STEP_FIXTURES[("state-record", "5")])
+RECORD_V7_PAIRS = pairs(STEP_FIXTURES[("state-record", "6")])
 AGENT_STATUS_V2_PAIRS = pairs(STEP_FIXTURES[("agent-status", "1")])
 PLAN_V2_PAIRS = pairs(STEP_FIXTURES[("plan", "1")])
 META_V1_PAIRS = pairs(STEP_FIXTURES[("generation-meta", "0")])
@@ -179,6 +182,31 @@ def test_state_record_v5_to_v6_matches_fixture_and_validates(before: Path, after
     assert record.hold is not None and record.hold.desired == hold["desired"]
     named = hold.get("targets") or ([hold["target"]] if hold.get("target") else [])
     assert [e.generation for e in record.hold.targets] == [e["generation"] for e in named]
+
+
+@pytest.mark.parametrize(("before", "after"), RECORD_V7_PAIRS, ids=lambda p: p.name)
+def test_state_record_v6_to_v7_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    """The last apply is kept as version 6 wrote it: an `in progress` still reads as live
+    or cut off by its pid, and nothing becomes `deferred` that was not written so."""
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert state_record_v6_to_v7.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    record = StateRecord.model_validate(upgrade("state-record", data, path=before))
+    last = data["last_apply"]
+    if last is None:
+        assert record.last_apply is None
+        return
+    assert record.last_apply is not None
+    assert (record.last_apply.result, record.last_apply.pid, record.last_apply.gates,
+            record.last_apply.retry) == (last["result"], last.get("pid"), [], None)
+    assert record.model_dump(mode="json")["last_apply"] == \
+        {"pid": None, "command": None, **last}, "a version-6 last apply is written as it was"
+
+
+def test_state_record_v6_to_v7_refuses_a_last_apply_that_is_no_mapping() -> None:
+    with pytest.raises(MigrationError):
+        state_record_v6_to_v7.upgrade({"version": 6, "last_apply": "in progress"})
 
 
 @pytest.mark.parametrize(("before", "after"), AGENT_STATUS_V2_PAIRS, ids=lambda p: p.name)

@@ -109,7 +109,8 @@ def test_every_face_says_what_the_one_report_says() -> None:
         "recorder was stopped by `lpam stop` and stays stopped"]
     assert report.holds[0].what in text
     assert lpam_text("c", report).split() == list(NAMES)
-    assert lpam_text("t", report).splitlines() == [a.unit.said for a in report.installed
+    assert lpam_text("t", report).splitlines() == [f"{a.name}: {a.unit.said}"
+                                                   for a in report.installed
                                                    if a.unit is not None]
     summary = summary_of(report)
     assert (summary["app"], summary["running"]) == ("controller", "no")

@@ -5,11 +5,18 @@ beside lpam's workflow; this module owns the bus connection, the registration of
 application (`GattManager1.RegisterApplication`) and of the advertisement
 (`LEAdvertisingManager1.RegisterAdvertisement`) on the adapter, and their lifetime:
 
-- bluetoothd absent, the adapter missing, the bus down: one log line per new reason, then
-  retries with a back-off that doubles from FIRST_DELAY to MAX_DELAY;
+- bluetoothd absent, the adapter missing, the bus down: one log line per new reason, which
+  says that it retries and when, then retries with a back-off that doubles from
+  FIRST_DELAY to MAX_DELAY (a line per attempt would fill the journal of a car parked
+  for a week without Bluetooth);
 - bluetoothd restarted (the `org.bluez` name leaves and returns, seen by NameOwnerChanged):
   a new bluetoothd knows nothing, so both are registered again at once;
 - stop: both unregistered (errors ignored: bluetoothd may be gone), then the bus closed.
+  A stop that comes while bluetoothd works on a registration does not abandon it: the
+  answer is awaited (LEAVE_TIMEOUT at most), since bluetoothd may already hold the object,
+  and what it may hold is unregistered like the rest. Abandoning it left the advertisement
+  registered after lpam had gone, whenever the stop came between bluetoothd taking it and
+  lpam reading its answer.
 
 It uses dbus-fast's low-level API (a message handler answering calls, `Message`), which
 is the same on dbus-fast 2.x (the cars' Python 3.9) and 5.x.
@@ -70,8 +77,15 @@ class GattServer:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
         self._registered: set[str] = set()
+        self._asked: set[str] = set()  # registrations sent, not answered: may be held
         self._bluez: str | None = None  # bluetoothd's unique name: the only caller served
         self._problem = ""  # the last reason logged, so a retry loop logs it once
+
+    @property
+    def registering(self) -> bool:
+        """True when bluetoothd holds, or may hold, something of lpam's (what a stop
+        unregisters)."""
+        return bool(self._registered or self._asked)
 
     async def run(self, stop: asyncio.Event) -> None:
         """Connect, register, serve until `stop`; then unregister and disconnect. Never
@@ -80,7 +94,7 @@ class GattServer:
         self._wake = asyncio.Event()
         delay = _Backoff()
         while not stop.is_set():
-            bus = await self._connect(stop)
+            bus = await self._connect(stop, delay)
             if bus is None:
                 await self._pause(stop, delay.next())
                 continue
@@ -91,7 +105,7 @@ class GattServer:
                 self._report(f"the Bluetooth service failed: {exc!r}; starting again "
                              f"(details in {self._bug()})")
             finally:
-                await self._leave(bus)
+                await self._leave(bus, stopping=stop.is_set())
             if not stop.is_set():  # the connection was lost or failed: not in a tight loop
                 await self._pause(stop, delay.next())
 
@@ -114,13 +128,13 @@ class GattServer:
         with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
             loop.call_soon_threadsafe(self.notify, char, value)
 
-    async def _connect(self, stop: asyncio.Event) -> MessageBus | None:
+    async def _connect(self, stop: asyncio.Event, delay: _Backoff) -> MessageBus | None:
         where = self._address or "the system bus"
         try:
             bus = MessageBus(bus_address=self._address, bus_type=BusType.SYSTEM)
             connected = await _first(stop, bus.connect(), CALL_TIMEOUT)
         except Exception as exc:  # no socket, refused, auth: all mean "not yet"
-            self._report(f"cannot connect to {where}: {_reason(exc)}")
+            self._report(f"cannot connect to {where}: {_reason(exc)}", retry=delay)
             return None
         if connected is None:
             bus.disconnect()
@@ -143,9 +157,9 @@ class GattServer:
             while not stop.is_set() and not gone.done():
                 if not self._missing():
                     await self._pause(stop, None, gone)
-                elif await self._register(bus, stop):
+                elif await self._register(bus, stop, delay):
                     delay.reset()
-                else:
+                elif not stop.is_set():
                     await self._pause(stop, delay.next(), gone)
             if gone.done():
                 self._report("the system bus connection was lost; connecting again")
@@ -155,32 +169,50 @@ class GattServer:
     def _missing(self) -> list[str]:
         return [w for w in _REGISTRATIONS if w not in self._registered]
 
-    async def _register(self, bus: MessageBus, stop: asyncio.Event) -> bool:
-        """Register what bluetoothd does not have; False (reason logged) on a failure."""
+    async def _register(self, bus: MessageBus, stop: asyncio.Event, delay: _Backoff) -> bool:
+        """Register what bluetoothd does not have; False on a failure (reason logged) or
+        a stop. A stop does not cut a registration short (module docstring)."""
         for what in self._missing():
-            manager, kind, path = _REGISTRATIONS[what]
-            call = self._adapter_call(manager, "Register" + kind, path)
-            error = await _call(bus, call, stop, CALL_TIMEOUT)
             if stop.is_set():
                 return False
+            manager, kind, path = _REGISTRATIONS[what]
+            call = self._adapter_call(manager, "Register" + kind, path)
+            self._asked.add(what)
+            error = await _call(bus, call, stop, CALL_TIMEOUT, grace=LEAVE_TIMEOUT)
+            if error is UNANSWERED:  # stopped, and still no answer: it may be held
+                return False
+            self._asked.discard(what)
             if error is not None and not error.startswith("org.bluez.Error.AlreadyExists"):
-                self._report(f"cannot register the {what} on {self._adapter}: "
-                             f"{self._explain(error)}; retrying")
+                if not stop.is_set():  # a stop retries nothing
+                    self._report(f"cannot register the {what} on {self._adapter}: "
+                                 f"{self._explain(error)}", retry=delay)
                 return False
             self._registered.add(what)
             self._problem = ""
             self._log(f"registered the {what} on {self._adapter}")
         return True
 
-    async def _leave(self, bus: MessageBus) -> None:
-        """Unregister what was registered, then close the connection."""
+    async def _leave(self, bus: MessageBus, *, stopping: bool = False) -> None:
+        """Unregister what was (or may have been) registered, then close the connection.
+        On a stop, each unregistration is said: the journal shows the car left BlueZ."""
         self._bus = None
-        for what in reversed([w for w in _REGISTRATIONS if w in self._registered]):
+        held = self._registered | self._asked
+        for what in reversed([w for w in _REGISTRATIONS if w in held]):
             manager, kind, path = _REGISTRATIONS[what]
             call = self._adapter_call(manager, "Unregister" + kind, path, options=False)
-            if bus.connected and self._bluez is not None:  # else gone with the bus or it
-                await _call(bus, call, asyncio.Event(), LEAVE_TIMEOUT)  # errors ignored
+            if not bus.connected or self._bluez is None:  # gone with the bus, or bluetoothd
+                continue
+            error = await _call(bus, call, asyncio.Event(), LEAVE_TIMEOUT)
+            if not stopping:
+                continue  # errors ignored: the connection is going anyway
+            if error is None:
+                self._log(f"unregistered the {what} from {self._adapter}")
+            elif what in self._registered:
+                self._log(f"could not unregister the {what} from {self._adapter}: "
+                          f"{self._explain(error)}; bluetoothd drops it as lpam leaves "
+                          "the bus")
         self._registered.clear()
+        self._asked.clear()
         self._objects.forget()
         bus.remove_message_handler(self._on_message)
         bus.disconnect()
@@ -236,10 +268,12 @@ class GattServer:
             return f"bluetoothd has no adapter {self._adapter} (is the controller up?)"
         return error
 
-    def _report(self, problem: str) -> None:
+    def _report(self, problem: str, *, retry: _Backoff | None = None) -> None:
+        """Log `problem` once, until the reason changes; with `retry`, say when lpam
+        tries again (each attempt is not logged: that is the back-off's point)."""
         if problem != self._problem:
             self._problem = problem
-            self._log(problem)
+            self._log(problem if retry is None else f"{problem}; {retry.said()}")
 
 
 class _Backoff:
@@ -253,21 +287,45 @@ class _Backoff:
     def reset(self) -> None:
         self._delay = FIRST_DELAY
 
+    def said(self) -> str:
+        """When the next attempts come, for the one line that reports a reason."""
+        if self._delay >= MAX_DELAY:
+            return f"retrying every {MAX_DELAY:g} s; said again only when the reason changes"
+        return (f"retrying in {self._delay:g} s, then at longer intervals up to "
+                f"{MAX_DELAY:g} s; said again only when the reason changes")
+
 
 def _daemon_call(member: str, signature: str, body: list[Any]) -> Message:
     return Message(destination=DBUS, path="/org/freedesktop/DBus", interface=DBUS,
                    member=member, signature=signature, body=body)
 
 
+UNANSWERED = "(stopped before an answer came)"
+
+
 async def _call(bus: MessageBus, msg: Message, stop: asyncio.Event,
-                timeout: float) -> str | None:
-    """None when the call succeeded, else `error.name: text` (a timeout, a lost bus)."""
+                timeout: float, *, grace: float = 0.0) -> str | None:
+    """None when the call succeeded, else `error.name: text` (a timeout, a lost bus).
+    `stop` cuts the wait short, after `grace` seconds more for the answer: then
+    UNANSWERED if none came (or None when no grace was asked: nothing to know)."""
+    task: asyncio.Future[Message | None] = asyncio.ensure_future(bus.call(msg))
     try:
-        reply = await _first(stop, bus.call(msg), timeout)
+        await _first(stop, asyncio.shield(task), timeout)
+        if not task.done() and stop.is_set() and grace:
+            await asyncio.wait({task}, timeout=grace)
+    finally:
+        if not task.done():
+            task.cancel()
+    if task.cancelled():
+        if stop.is_set():
+            return UNANSWERED if grace else None
+        return f"no answer in {timeout:g} s"
+    try:
+        reply = task.result()
     except Exception as exc:
         return _reason(exc)
     if reply is None:
-        return None if stop.is_set() else f"no answer in {timeout:g} s"
+        return "no answer"
     if reply.message_type is MessageType.ERROR:
         text = reply.body[0] if reply.body else ""
         return f"{reply.error_name}: {text}"

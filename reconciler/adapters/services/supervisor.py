@@ -37,7 +37,6 @@ from __future__ import annotations
 import contextlib
 import os
 import pwd
-import stat
 import time
 import xmlrpc.client
 from dataclasses import replace
@@ -58,6 +57,7 @@ from reconciler.adapters.services.supervisor_daemon import (
 from reconciler.base.atomic import fsync_dir, write_atomic
 from reconciler.base.errors import ServiceError
 from reconciler.base.layout import Layout
+from reconciler.base.reading import open_regular, tail
 from reconciler.base.unit import Activity, Unit, UnitState, check_unit_name
 
 __all__ = ["SupervisorServices", "check_user", "shutdown", "tail"]
@@ -415,20 +415,9 @@ def check_user(unit: str, user: str, *, manager_uid: int) -> None:
         )
 
 
-def _open_regular(path: Path) -> int | None:
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | os.O_NOCTTY)
-    except OSError:
-        return None
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        return None
-    return fd
-
-
 def _read_from(path: Path, offset: int) -> str:
     """The text of `path` from `offset` on, at most READ_LIMIT bytes (the last ones)."""
-    fd = _open_regular(path)
+    fd = open_regular(path)
     if fd is None:
         return ""
     try:
@@ -438,27 +427,3 @@ def _read_from(path: Path, offset: int) -> str:
             else ""
     finally:
         os.close(fd)
-
-
-def tail(path: Path, lines: int) -> list[str]:
-    """The last `lines` lines of `path`, read backwards from its end (at most READ_LIMIT
-    bytes), without their line ends. A missing file has no lines."""
-    fd = None if lines == 0 else _open_regular(path)
-    if fd is None:
-        return []
-    try:
-        end = os.fstat(fd).st_size
-        data = b""
-        start = end
-        while start > 0 and data.count(b"\n") <= lines and end - start < READ_LIMIT:
-            step = min(64 * 1024, start, READ_LIMIT - (end - start))
-            start -= step
-            data = os.pread(fd, step, start) + data
-    finally:
-        os.close(fd)
-    parts = data.decode(errors="replace").split("\n")
-    if parts and parts[-1] == "":
-        parts.pop()
-    if start > 0 and parts:
-        parts.pop(0)  # begun mid-line
-    return [p.removesuffix("\r") for p in parts[-lines:]]

@@ -43,7 +43,13 @@ from reconciler.core.planning.lifecycle import (
     started,
     verified,
 )
-from reconciler.core.planning.model import UNKNOWN, AppTarget, GenerationKey, short
+from reconciler.core.planning.model import (
+    LIFECYCLE_SCRIPTS,
+    UNKNOWN,
+    AppTarget,
+    GenerationKey,
+    short,
+)
 from schemas.plan import Action, Change, Phase, Step, StepKind
 from schemas.record import ACTIVE, AppRecord, Stray
 
@@ -65,32 +71,37 @@ class Install:
 
 @dataclass(frozen=True)
 class Adopt:
-    """An app LPAM installed that is the desired app as it is (engine/observe/adoption.py)."""
+    """An app LPAM installed that is the desired app as it is (engine/observe/adoption.py);
+    `starts`: it was not running, and this plan starts it."""
 
     action: ClassVar[Action] = Action.CREATE
     app: str
     stray: str
     repository: str
     commit: str | None
+    starts: bool = False
 
     def said(self) -> str:
+        then = ("nothing is reinstalled; it was not running: started" if self.starts
+                else "no script runs and it is not restarted")
         return (f"{self.app}, installed by LPAM as {self.stray}, is the desired app as it is "
                 f"(same files as {self.repository} at {short(self.commit)}): adopted in place "
-                "— no script runs and it is not restarted")
+                f"— {then}")
 
 
 @dataclass(frozen=True)
 class Remove:
     """An installed app no longer desired; `heirs`: arriving apps that claim something it
-    claims (`claims`: what they share)."""
+    claims (`claims`: what they share); `stops`: it may run, so it is stopped first."""
 
     action: ClassVar[Action] = Action.DELETE
     app: str
     heirs: tuple[str, ...] = ()
     claims: tuple[str, ...] = ()
+    stops: bool = True
 
     def said(self) -> str:
-        text = f"app {self.app} is no longer desired: stopped and uninstalled"
+        text = f"app {self.app} is no longer desired: {_leaves(self.stops)}"
         if self.heirs:
             one = len(self.heirs) == 1
             text += (f" before {', '.join(self.heirs)}, which {'claims' if one else 'claim'} "
@@ -107,10 +118,11 @@ class Moved:
     app: str
     was: str
     now: str
+    stops: bool = True
 
     def said(self) -> str:
         return (f"{self.app} now comes from {self.now} (installed from {self.was}): the "
-                "installed one is stopped and uninstalled before the new one is installed")
+                f"installed one is {_leaves(self.stops)} before the new one is installed")
 
 
 @dataclass(frozen=True)
@@ -135,6 +147,7 @@ class NewGeneration:
     folder: tuple[str, str] | None
     new_folder: bool
     params_changed: bool
+    stops: bool = True
 
     def said(self) -> str:
         if not self.new_folder:
@@ -145,7 +158,7 @@ class NewGeneration:
             what = [f"new version (folder {self.folder[0][:12]} → {self.folder[1][:12]})"]
         if self.params_changed:
             what.append("parameters changed")
-        return (f"{self.app}: {', '.join(what)}; the old generation is stopped and uninstalled "
+        return (f"{self.app}: {', '.join(what)}; the old generation is {_leaves(self.stops)} "
                 "before the new one is installed")
 
 
@@ -155,27 +168,39 @@ class FolderMissing:
 
     action: ClassVar[Action] = Action.UPDATE
     app: str
+    stops: bool = True
 
     def said(self) -> str:
-        return (f"{self.app}: its installed folder is missing from disk: copied out of git "
-                "again and reinstalled")
+        stopped = "stopped, " if self.stops else ""
+        return (f"{self.app}: its installed folder is missing from disk: {stopped}copied out "
+                "of git again and reinstalled")
 
 
 @dataclass(frozen=True)
 class Reconfigure:
-    """New parameters (`keys`; none: a new user) for the installed generation."""
+    """New parameters (`keys`; none: a new user) for the installed generation; `stops`: it
+    may run, so it is stopped first; `scripts`: the lifecycle scripts the app has (none:
+    a scriptless app, whose unit lpam rewrites with the new values)."""
 
     action: ClassVar[Action] = Action.UPDATE
     app: str
     keys: tuple[str, ...]
-    reinstall: bool  # its install script was cut off: it runs again first
+    reinstall: bool  # its install was cut off: it runs again first
     restart: bool
+    stops: bool = True
+    scripts: frozenset[str] = LIFECYCLE_SCRIPTS
 
     def said(self) -> str:
         what = f"parameters changed ({', '.join(self.keys)})" if self.keys else "user changed"
-        then = "restarted with the new values" if self.restart else "recorded, not started"
-        script = ("its install script, cut off before, runs again first" if self.reinstall
-                  else "no install script runs")
+        if self.restart:
+            then = f"{'restarted' if self.stops else 'started'} with the new values"
+        else:
+            then = f"{'stopped and ' if self.stops else ''}recorded, not started"
+        has = "install.sh" in self.scripts
+        if self.reinstall:
+            script = f"its install{' script' if has else ''}, cut off before, runs again first"
+        else:
+            script = "no install script runs" if has else "nothing is reinstalled"
         return f"{self.app} {what}: {then}; {script}, no new generation"
 
 
@@ -191,6 +216,7 @@ class Held:
     status: str
     may_run: bool = False
     operator: bool = True
+    scripts: frozenset[str] = LIFECYCLE_SCRIPTS
 
     @property
     def reinstall(self) -> bool:
@@ -203,8 +229,8 @@ class Held:
     def said(self) -> str:
         asked = ", as an operator asked (`lpam stop`)" if self.operator else ""
         if self.reinstall:
-            return (f"{self.app} {_FINISHED[self.status].split(':')[0]}: installed again; it "
-                    f"stays stopped{asked}")
+            return (f"{self.app} {_finished(self.status, self.scripts).split(':')[0]}: "
+                    f"installed again; it stays stopped{asked}")
         if self.may_run and self.operator:
             return (f"{self.app} was stopped by an operator (`lpam stop`), but that stop did "
                     "not finish and it may still run: stopped")
@@ -276,32 +302,50 @@ class Running:
 
 _FINISHED = {
     "installed": "is installed but not running: started",
-    "starting": "was being started when the last apply stopped (start.sh cut off or failed): "
-    "started again",
-    "installing": "was being installed when the last apply stopped (install.sh cut off or "
-    "failed): installed again and started",
+    "starting": "was being started when the last apply stopped ({}): started again",
+    "installing": "was being installed when the last apply stopped ({}): installed again "
+    "and started",
     "stopping": "was being stopped when the last apply stopped: stopped, then started again",
     "uninstalling": "was being uninstalled when the last apply stopped: installed again and "
     "started",
 }
+_CUT = {"starting": "start", "installing": "install"}
+
+
+def _finished(status: str, scripts: frozenset[str]) -> str:
+    """What finishing a cut-off lifecycle does; a script is named only when the app has it
+    (a scriptless app's unit lpam starts itself; a folder may lack start.sh)."""
+    cut = _CUT.get(status, "")
+    script = f"{cut}.sh"
+    what = f"{script} cut off or failed" if script in scripts else f"its {cut} cut off or failed"
+    return _FINISHED[status].format(what)
 
 
 @dataclass(frozen=True)
 class Finish:
-    """A script was cut off, or the app is installed and not running: finished or redone."""
+    """A script was cut off, or the app is installed and not running: finished or redone;
+    `scripts`: the lifecycle scripts the app has (none: a scriptless app)."""
 
     action: ClassVar[Action] = Action.UPDATE
     app: str
     status: str
     unproven: bool = False
+    scripts: frozenset[str] = LIFECYCLE_SCRIPTS
 
     def said(self) -> str:
-        return f"{self.app} {_FINISHED[self.status]}" + _unproven(self.unproven)
+        return f"{self.app} {_finished(self.status, self.scripts)}" + _unproven(self.unproven)
+
+
+def _leaves(stops: bool) -> str:
+    """How an installed generation leaves: stopped only when it may run."""
+    return "stopped and uninstalled" if stops else "uninstalled (it is not running)"
 
 
 def _unproven(unproven: bool) -> str:
-    return ("; it has not passed its health check since it was installed (the check was cut "
-            "off): checked again for a whole settle window" if unproven else "")
+    # the record's `good` is cleared by an install and by new parameters alike
+    return ("; it has not passed its health check since it was installed or its parameters "
+            "last changed (the check did not run to its end): checked again for a whole "
+            "settle window" if unproven else "")
 
 
 Reason = Union[Install, Adopt, Remove, Moved, KnownAfterFetch, NewGeneration, FolderMissing,
@@ -363,34 +407,50 @@ def _chosen(old: AppRecord | None, new: AppTarget | None,
     seen = None if old is None else refreshed_app(old, live)
     if new is None:
         assert old is not None and seen is not None, "an app is installed, desired, or both"
+        heirs = [h for h in heirs if h.resources & old.claims]  # only they wait for it
         shared = tuple(sorted(old.claims & frozenset().union(*(h.resources for h in heirs))))
-        reason = Remove(old.name, tuple(h.name for h in heirs), shared)
+        reason = Remove(old.name, tuple(h.name for h in heirs), shared, _stops(seen))
         return reason, _replaced(seen, None, generations, start=start, verify=verify)
     if old is None or seen is None:
         if adopted is not None:
-            return (Adopt(new.name, adopted.name, new.repository, new.commit),
+            return (Adopt(new.name, adopted.name, new.repository, new.commit,
+                          starts=adopted.stopped and start),
                     adopted_steps(adopted, new, generations, start=start, verify=verify))
         return (Install(new.name, new.repository, new.commit),
                 _replaced(None, new, generations, start=start, verify=verify))
     if same_generation(old, new, generations):
         return _same(old, seen, new, live, start=start, verify=verify)
-    return _other(old, new, generations), _replaced(seen, new, generations, start=start,
-                                                    verify=verify)
+    return _other(old, new, _stops(seen)), _replaced(seen, new, generations, start=start,
+                                                     verify=verify)
 
 
-def _other(old: AppRecord, new: AppTarget, generations: frozenset[GenerationKey]) -> Reason:
+def _stops(seen: AppRecord) -> bool:
+    """Whether the installed app, as the service manager sees it, is stopped before it
+    leaves (_replaced stops only an app that may run)."""
+    return seen.status in ACTIVE
+
+
+def _scripts(new: AppTarget) -> frozenset[str]:
+    """The lifecycle scripts the app has (none for a scriptless app, whose unit lpam
+    writes; all four when its folder was not read): a text names only these."""
+    if new.command is not None or new.launch is not None:
+        return frozenset()
+    return LIFECYCLE_SCRIPTS if new.scripts is None else new.scripts
+
+
+def _other(old: AppRecord, new: AppTarget, stops: bool) -> Reason:
     """Why another generation replaces the installed one."""
     if new.tree is None and new.repository == UNKNOWN:
         return KnownAfterFetch(new.name)
     if old.repository != new.repository:
-        return Moved(new.name, old.repository, new.repository)
+        return Moved(new.name, old.repository, new.repository, stops)
     same_folder = new.tree == old.tree if new.tree is not None else new.commit == old.commit
     command = list(new.command) if new.command is not None else None
     same_how = (old.command, old.launch) == (command, new.launch)
     if same_folder and same_how:  # same generation, yet not on disk
-        return FolderMissing(new.name)
+        return FolderMissing(new.name, stops)
     folder = None if new.tree is None else (old.tree, new.tree)
-    return NewGeneration(new.name, folder, not same_folder, old.params != new.params)
+    return NewGeneration(new.name, folder, not same_folder, old.params != new.params, stops)
 
 
 def _replaced(old: AppRecord | None, new: AppTarget | None,
@@ -427,7 +487,7 @@ def _same(old: AppRecord, seen: AppRecord, new: AppTarget, live: UnitState | Non
         keys = tuple(sorted(k for k in set(old.params) | set(new.params)
                             if old.params.get(k) != new.params.get(k)))
         reinstall = seen.status in ("installing", "uninstalling")
-        return (Reconfigure(new.name, keys, reinstall, start),
+        return (Reconfigure(new.name, keys, reinstall, start, _stops(seen), _scripts(new)),
                 _reconfigured(seen, new, target, start=start, verify=verify))
     kinds = SAME_GENERATION[seen.status]
     if not start or seen.held:
@@ -447,7 +507,7 @@ def _why(old: AppRecord, seen: AppRecord, new: AppTarget, unit: str, acts: bool,
     if seen.held or not start:
         reinstall = seen.status in ("installing", "uninstalling")
         return Held(new.name, seen.status, may_run=acts and not reinstall,
-                    operator=seen.held)
+                    operator=seen.held, scripts=_scripts(new))
     if seen.status == "stopping" and old.status != "stopping":
         return Unsupervised(new.name, unit)
     if old.status == "running" and seen.status == "installed":
@@ -457,7 +517,7 @@ def _why(old: AppRecord, seen: AppRecord, new: AppTarget, unit: str, acts: bool,
     if seen.status == "running":
         return Running(new.name, None if new.commit == old.commit else new.commit,
                        unproven=checks)
-    return Finish(new.name, seen.status, unproven=checks)
+    return Finish(new.name, seen.status, unproven=checks, scripts=_scripts(new))
 
 
 def _reconfigured(seen: AppRecord, new: AppTarget, target: str, *, start: bool,

@@ -115,10 +115,19 @@ def _repository_change(t: RepoTarget, observed: Observed, ref: str) -> Change:
             warnings=_edits_warning(observed, t.key, blocked),
         )
     before = _repo_fields(rec)
+    if rec.url != t.url and t.in_store:  # engine/execution/steps/repositories.py
+        return Change(
+            address=f"repository.{t.key}", action=Action.UPDATE, before=before, after=after,
+            reason=f"URL changed from {rec.url} to {t.url}: commit {short(t.commit)} is "
+            "already in the store, so no fetch and no network; the new URL is used from "
+            "the next fetch on",
+            warnings=_edits_warning(observed, t.key, "left as they are"),
+        )
     if rec.url != t.url:
         return Change(
             address=f"repository.{t.key}", action=Action.REPLACE, before=before, after=after,
-            reason=f"URL changed from {rec.url} to {t.url}: cloned anew",
+            reason=f"URL changed from {rec.url} to {t.url}: cloned anew from it (a fetch "
+            "over the network)",
             warnings=_edits_warning(observed, t.key, blocked),
         )
     head = obs.head if obs is not None and obs.present else None

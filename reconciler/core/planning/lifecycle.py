@@ -233,8 +233,7 @@ _NEXT = {
     "starting": "was being started: the next apply starts it again",
     "installing": "was being installed: the next apply installs it again and starts it",
     "stopping": "was being stopped: the next apply stops it, then goes on",
-    "uninstalling": "was being uninstalled: the next apply installs it again (its scripts "
-    "put it back) and goes on",
+    "uninstalling": "was being uninstalled: the next apply installs it again and goes on",
 }
 
 

@@ -18,6 +18,7 @@ from schemas.generation import GenerationMeta
 from schemas.record import StateRecord
 
 UNKNOWN = "(known after fetch)"  # a value a plan cannot know without the network
+LIFECYCLE_SCRIPTS = frozenset({"install.sh", "uninstall.sh", "start.sh", "stop.sh"})
 
 
 class GenerationKey(NamedTuple):
@@ -47,6 +48,7 @@ class RepoTarget:
     commit: str | None
     as_of_last_fetch: bool = False
     no_catalog: bool = False  # an app repository whose commit has no libpanda-apps.yaml
+    in_store: bool = False  # a pinned commit the store holds: its checkout needs no network
 
 
 @dataclass(frozen=True)
@@ -157,6 +159,8 @@ class AppTarget:
     deps: Deps = field(default_factory=Deps)
     resources: frozenset[str] = frozenset()
     proven: bool = False  # it proved good before (what a rollback returns to): no re-check
+    # the lifecycle scripts its folder has (None: not read), for the plan's words only
+    scripts: frozenset[str] | None = None
 
     @property
     def generation(self) -> str | None:

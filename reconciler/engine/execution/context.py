@@ -50,6 +50,9 @@ class Context:
     listener: Listener | None = None  # the vehicle's bus, for `health.can`
     command: str = "lpam apply"  # what a user runs to resume this one (said in errors)
     desired: DesiredRef | None = None  # what this apply works toward (holds hold against it)
+    # Seconds until the agent's next pass tries a deferred apply again (None: nothing
+    # tries it again by itself; the next `lpam apply` does).
+    retry_after: float | None = None
     # The ROS distribution's setup file a launch app without a build of its own runs inside
     # (None: roslaunch is on PATH already); the caller that chooses adapters gives the probe.
     underlay: Callable[[], Path | None] = field(default=lambda: None)

@@ -29,6 +29,7 @@ from reconciler.engine.execution.recovery import (
     AdvisoryJournal,
     begin_cutover,
     begun,
+    deferred,
     fail,
     finish,
     finish_pending,
@@ -55,10 +56,15 @@ def execute(plan: Plan, ctx: Context, *, progress: Callable[[str], None],
     journal = AdvisoryJournal(
         Journal(ctx.layout, apply_id=str(uuid.uuid4()), plan=plan.fingerprint), progress)
     journal.open(ctx)
+    in_force = ctx.record.desired  # a deferral changes nothing: it stays in force
     try:
         _execute(plan, ctx, journal, progress, record_result=record_result, keep=keep)
     except StateWriteError as exc:  # a full disk: say where the record left the car
         raise unwritable_error(ctx, exc) from None
+    except Deferred as exc:  # a closed gate: deferred, never taken for a kill
+        if record_result:
+            deferred(ctx, exc, desired=in_force)
+        raise
     except (KeyboardInterrupt, Terminated):
         if record_result:
             interrupted(ctx)

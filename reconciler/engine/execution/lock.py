@@ -72,28 +72,62 @@ def _holder(fd: int) -> str:
     return printable(text)
 
 
+@dataclass(frozen=True)
+class Holding:
+    """Who holds the lock, read from its note: the lpam process that took it (`pid`),
+    whether that process still lives, and the process group of the app script it handed
+    the lock to (None: none named). A holder whose lpam is gone is a script of an apply
+    that has ended — never "an apply in progress"."""
+
+    note: str
+    pid: int | None
+    alive: bool
+    group: str | None
+
+    @classmethod
+    def of(cls, note: str) -> Holding:
+        pid_text = note.removeprefix("pid ").split(":", 1)[0]
+        pid = int(pid_text) if pid_text.isdigit() else None
+        alive = True
+        if pid is not None:
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                alive = False
+            except (PermissionError, OverflowError):
+                pass
+        group = None
+        if "process group" in note:
+            words = note.rsplit("process group", 1)[1].split()
+            group = words[0] if words and words[0].isdigit() else None
+        return cls(note, pid, alive, group)
+
+    @property
+    def orphaned(self) -> bool:
+        """A script of an apply that has ended still runs, and holds the lock."""
+        return not self.alive and self.group is not None
+
+    def describe(self) -> str:
+        """What holds the lock, said as every command says it (`apply` refused, `plan`
+        beside it, `status`)."""
+        what = self.note or "another lpam process"
+        if self.orphaned:
+            return (f"a script of an apply that has ended ({what}); the script is still "
+                    "running")
+        return f"an apply in progress ({what})"
+
+
 def _busy_message(holder: str, layout: Layout) -> LockError:
     """What a blocked writer tells the user, from the holder's note."""
-    pid_text = holder.removeprefix("pid ").split(":", 1)[0]
-    alive = True
-    if pid_text.isdigit():
-        try:
-            os.kill(int(pid_text), 0)
-        except ProcessLookupError:
-            alive = False
-        except PermissionError:
-            pass
-    what = holder or "another lpam process"
-    if not alive and "process group" in holder:
-        group = holder.rsplit("process group", 1)[1].strip().split()[0]
+    holding = Holding.of(holder)
+    if holding.orphaned:
         return LockError(
-            f"lpam is locked by a script of an apply that has ended ({what}); the script "
-            "is still running",
+            f"lpam is locked by {holding.describe()}",
             hint="wait for it to finish — the next apply then resumes where it stood — or "
-            f"stop it with `kill -- -{group}` and apply again",
+            f"stop it with `kill -- -{holding.group}` and apply again",
         )
     return LockError(
-        f"another lpam apply holds {layout.lock} ({what})",
+        f"another lpam apply holds {layout.lock} ({holder or 'another lpam process'})",
         hint="wait for it to finish, or pass --lock-timeout SECONDS to wait longer",
     )
 

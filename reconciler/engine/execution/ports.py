@@ -56,6 +56,13 @@ class Store(Protocol):
 
     def fetch(self, key: str, url: str) -> None: ...
 
+    def repoint(self, key: str, url: str) -> None:
+        """Make `url` the checkout's origin without the network, for a checkout that already
+        holds the commit it needs (a pinned repository moved to another URL): a commit
+        names the same content whichever remote brought it. What the last fetch saw of the
+        old origin's branches and tags is set aside, never read as the new one's."""
+        ...
+
     def checkout(self, key: str, commit: str) -> None: ...
 
     def remove(self, key: str) -> None: ...
@@ -130,6 +137,10 @@ class Resolving(Store, Protocol):
     def resolve_local(self, key: str, ref: str) -> str | None: ...
 
     def folder_tree(self, key: str, commit: str, folder: str) -> str | None: ...
+
+    def folder_files(self, key: str, commit: str, folder: str) -> list[str]:
+        """The names of the regular files directly in `commit:folder` ([] without it)."""
+        ...
 
 
 def ambiguous(key: str, ref: str, commits: Sequence[str]) -> RefNotFoundError:

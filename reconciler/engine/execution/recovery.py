@@ -20,8 +20,15 @@ import contextlib
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from datetime import timedelta
 
-from reconciler.base.errors import HealthError, LpamError, StateWriteError, StepError
+from reconciler.base.errors import (
+    Deferred,
+    HealthError,
+    LpamError,
+    StateWriteError,
+    StepError,
+)
 from reconciler.core.planning.lifecycle import resume_text
 from reconciler.core.planning.model import GenerationKey
 from reconciler.core.planning.modes import names, steps_back
@@ -35,6 +42,7 @@ from schemas.record import (
     ApplyResult,
     AppRecord,
     Cutover,
+    DesiredRef,
     HistoryEntry,
     Hold,
     LastApply,
@@ -138,6 +146,58 @@ def interrupted(ctx: Context) -> None:
                      command=ctx.command)
     with contextlib.suppress(LpamError):
         ctx.save(ctx.record.model_copy(update={"last_apply": last}))
+
+
+DEFERRED_PREFIX = "the update gates are closed: "  # how the gates word a deferral
+
+
+def deferred(ctx: Context, exc: Deferred, *, desired: DesiredRef | None) -> None:
+    """A closed gate ended the apply before its cutover: say so in the record, with the
+    gates that were closed and when the agent's next pass tries again (best effort, as an
+    interruption). No command is kept: the desired state to apply next time may no
+    longer be this one. Nothing on the running app changed, so the desired state in force
+    stays the one before it (`desired`: what holds hold against — an operator's stop
+    must not end because an apply of another file was deferred)."""
+    now = ctx.clock()
+    reason = exc.message[len(DEFERRED_PREFIX):] if exc.message.startswith(DEFERRED_PREFIX) \
+        else exc.message
+    retry = None if ctx.retry_after is None else \
+        (now + timedelta(seconds=ctx.retry_after)).isoformat(timespec="seconds")
+    last = LastApply(time=now.isoformat(timespec="seconds"), result="deferred",
+                     reason=reason, gates=list(exc.gates), retry=retry)
+    with contextlib.suppress(LpamError):
+        ctx.save(ctx.record.model_copy(update={"last_apply": last, "desired": desired}))
+
+
+STALE: frozenset[str] = frozenset({"in progress", "deferred", "interrupted"})
+"""Last applies that owe the car something (to resume, or to try again): an apply that
+finds nothing to do ends them. Under the apply lock an `in progress` is one cut off."""
+
+
+def settled(record: StateRecord, *, now: str, desired: DesiredRef | None
+            ) -> StateRecord | None:
+    """The record after an apply that had nothing to do (None: nothing to write). The
+    machine matched the desired state in force, so a deferred, interrupted or cut-off
+    apply before it no longer applies: status must not keep telling the user to resume
+    it. A cutover that was cut off after its last step ends too (a rollback still owed is
+    finished by its own plan, never here); what the checkouts hold is what runs."""
+    last = record.last_apply
+    owed = last is not None and last.result in STALE
+    cut_off = record.cutover is not None and record.cutover.rollback is None
+    if not owed and not cut_off:
+        return None
+    # Under a rollback's hold nothing to do means the car is what the rollback returned to,
+    # not what the checkouts hold.
+    repositories = record.repositories if record.hold is not None else \
+        [r.model_copy(update={"applied": r.commit}) for r in record.repositories]
+    return record.model_copy(update={
+        "last_apply": LastApply(time=now, result="applied",
+                                reason="nothing was left to do: the machine matched the "
+                                "desired state"),
+        "repositories": repositories,
+        "cutover": None,
+        "desired": desired or record.desired,
+    })
 
 
 def begin_cutover(ctx: Context, previous: list[AppRecord]) -> None:

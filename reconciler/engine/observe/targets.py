@@ -34,6 +34,7 @@ from reconciler.base.layout import Layout
 from reconciler.base.unit import check_unit_name
 from reconciler.core.documents import parse_catalog
 from reconciler.core.planning.model import (
+    LIFECYCLE_SCRIPTS,
     UNKNOWN,
     AppTarget,
     Deps,
@@ -142,7 +143,9 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: Resolving,
     if ref is not None and is_hex_commit(ref):
         # A commit hash names the same content whichever remote brought it.
         commit = store.resolve_local(key, ref)
-        if commit is None and fetch is not Fetch.OFFLINE:
+        if commit is not None:
+            return RepoTarget(key=key, url=url, ref=ref, commit=commit, in_store=True)
+        if fetch is not Fetch.OFFLINE:
             _bring(store, key, url, fetch)
             commit = store.resolve_local(key, ref)
             if commit is None:
@@ -280,6 +283,9 @@ def _app_target(
                     f"{repo.key}@{short(repo.commit)}: app {spec.name}: its `service` file: "
                     f"{exc}", hint="fix the app's `service` file or pin another commit",
                 ) from None
+    # which scripts it has, for the plan's words (a script that is a link is not counted)
+    scripts = None if scriptless else LIFECYCLE_SCRIPTS.intersection(
+        store.folder_files(repo.key, repo.commit, entry.path))
     user = spec.user or default_user if scriptless else None
     if user is not None:
         _check_user(spec.name, user)
@@ -289,7 +295,7 @@ def _app_target(
         name=spec.name, repository=repo.key, commit=repo.commit, path=entry.path, tree=tree,
         params=dict(spec.params), service=service,
         command=tuple(entry.command) if entry.command is not None else None,
-        launch=entry.launch, user=user, resources=claims,
+        launch=entry.launch, user=user, resources=claims, scripts=scripts,
         health=HealthTarget(
             settle_seconds=DEFAULT_SETTLE_SECONDS if health.settle_seconds is None
             else health.settle_seconds,

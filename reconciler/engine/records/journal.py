@@ -6,7 +6,8 @@ only. After a power cut or SIGKILL, a step with "begin" and no end is the interr
 the next apply reports it and runs it again, while steps that ended are not repeated
 (they are already reflected in the state record). A torn last line is ignored. An apply
 whose cutover a closed update gate deferred ends with a "deferred" event (its reasons)
-before "apply-end": `lpam status` shows it until the next apply starts a new journal.
+before "apply-end"; what `lpam status` says of it comes from the state record's last apply
+(`deferred`), which any later apply ends — one with nothing to do included.
 
 The journal is advisory — the state record is what lpam trusts — so a damaged one never
 blocks anything: a reader skips what it cannot parse (bad UTF-8, JSON nested too deep, a

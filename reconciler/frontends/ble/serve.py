@@ -6,6 +6,10 @@ phones' writes, which go to the bridge's worker. A stop (SIGTERM from systemd, C
 unregisters both objects at once, so the phone sees the car leave, and then lets a request
 that is running end at its next safe point — never in the middle of a cutover, as the
 agent's stop (the machine's `stop_requested`).
+
+A stop that comes before the loop has its handlers (while lpam starts) is kept by the
+caller's `stopping` event and acted on as soon as the loop runs: nothing is registered
+then, and the log says so rather than "unregistering".
 """
 
 from __future__ import annotations
@@ -32,9 +36,11 @@ TimeoutStopSec is the same: adapters/services/agentunits.py)."""
 
 
 def serve(machine: Machine, *, bus_address: str | None, adapter: str,
-          log: Callable[[str], None], bug: Callable[[], str]) -> int:
-    """Run until stopped; 0 when stopped by a signal, as a service should."""
-    stopping = threading.Event()
+          log: Callable[[str], None], bug: Callable[[], str],
+          stopping: threading.Event | None = None) -> int:
+    """Run until stopped; 0 when stopped by a signal, as a service should. `stopping`:
+    set by the caller's own signal handlers while lpam was starting."""
+    stopping = threading.Event() if stopping is None else stopping
     machine = replace(machine, stop_requested=stopping.is_set)
     asyncio.run(_serve(machine, stopping, bus_address=bus_address, adapter=adapter, log=log,
                        bug=bug))
@@ -45,20 +51,26 @@ async def _serve(machine: Machine, stopping: threading.Event, *, bus_address: st
                  adapter: str, log: Callable[[str], None], bug: Callable[[], str]) -> None:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
+    servers: list[GattServer] = []
 
     def on_signal() -> None:
-        log("stopping: unregistering from BlueZ")
+        if stop.is_set():
+            return
+        registered = bool(servers) and servers[0].registering
+        log("stopping: unregistering from BlueZ" if registered else
+            "stopping: nothing was registered with BlueZ")
         stopping.set()
         stop.set()
 
-    for number in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(number, on_signal)
-    servers: list[GattServer] = []
     thermometer = Thermometer(machine.layout.thermal_zone)
     bridge = Bridge(machine, lambda char, value: servers[0].notify_threadsafe(char, value),
                     thermometer=thermometer, log=log, bug=bug)
     server = GattServer(bridge, bus_address=bus_address, adapter=adapter, log=log, bug=bug)
     servers.append(server)
+    for number in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(number, on_signal)
+    if stopping.is_set():  # a signal while lpam started, before these handlers
+        on_signal()
     ticking = asyncio.ensure_future(_tick(server, thermometer, stop))
     try:
         await server.run(stop)

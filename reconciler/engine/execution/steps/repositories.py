@@ -23,12 +23,16 @@ def check_out(step: CheckoutStep, ctx: Context) -> None:
     repository's checkout does: the executor runs several at once (record_checkout after)."""
     key, url, commit = step.key, step.url, known(step.commit, step.id, "commit")
     try:
-        present = ctx.store.origin_url(key) == url and ctx.store.has_commit(key, commit)
+        present = ctx.store.has_commit(key, commit)
     except StoreDamagedError as exc:  # since a saved plan was made: the store is a cache
         ctx.log(damage.renew(ctx.store, key, url, exc.damage))
         present = ctx.store.has_commit(key, commit)
     if not present:
         ctx.store.fetch(key, url)
+    elif ctx.store.origin_url(key) != url:
+        # a pinned repository moved to another URL: the commit it needs is here already,
+        # so no network (the plan said so: core/planning/diff.py)
+        ctx.store.repoint(key, url)
     if ctx.store.head(key) != commit:
         ctx.store.checkout(key, commit)
 
