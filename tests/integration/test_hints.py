@@ -104,6 +104,10 @@ def test_a_resume_hint_and_a_stops_hint_run_as_printed_from_elsewhere(
                           "my state.yaml", "--yes")
         assert cut.returncode == 130, cut.stderr
         [resume] = suggested(cut.stderr)
+        table = lpam_in(elsewhere, "--root", str(here / "root"), "status").stdout
+        [last] = [line for line in table.splitlines() if line.startswith("Last apply:")]
+        assert last.count("interrupted") == 1, last  # not "interrupted at …: interrupted"
+        assert f"`{resume}` goes on from where it stood" in last, last
         assert shlex.split(resume) == [
             "lpam", "--root", str(here / "root"), "--services", "supervisor",
             "--script-timeout", "100", "apply", "-f", str(here / "my state.yaml")], resume

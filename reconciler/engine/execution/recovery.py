@@ -142,7 +142,7 @@ def begun(ctx: Context) -> StateRecord:
 def interrupted(ctx: Context) -> None:
     """Ctrl-C or SIGTERM: say so in the record (best effort: it is how the apply ended)."""
     last = LastApply(time=ctx.clock().isoformat(timespec="seconds"), result="interrupted",
-                     reason="interrupted (Ctrl-C or SIGTERM); where it stood is recorded",
+                     reason="by Ctrl-C or SIGTERM; where it stood is recorded",
                      command=ctx.command)
     with contextlib.suppress(LpamError):
         ctx.save(ctx.record.model_copy(update={"last_apply": last}))
