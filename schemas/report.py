@@ -24,6 +24,16 @@ from schemas.record import AppStatus, Cutover, LastResult
 REPORT_VERSION: Literal[1] = 1
 NO_SERVICE = "none"  # LPAM's table and the phone: an app that names no service
 
+Standing = Literal["running", "unverified", "stopped by operator", "stopping", "not running",
+                   "starting", "installed"]
+"""An installed app's status, one closed word, derived together with whether it runs (its
+service manager's word) so that no face can say `running` of an app its manager calls
+stopped: `running` (its manager says it runs); `unverified` (its manager cannot know its
+unit: only lpam's record speaks); `stopped by operator` (`lpam stop`, and it is stopped);
+`stopping` (a stop was asked or begun and did not finish: it may still run); `not running`
+(lpam started it, its manager says it is not running: drift); `starting` (an install or a
+start was under way, or was cut off); `installed` (installed, not started)."""
+
 
 class _View(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -54,8 +64,13 @@ class InstalledApp(_View):
                           "the manager cannot know its unit: then `verified` is false)")
     verified: bool
     status: AppStatus = Field(description="the lifecycle as the record has it")
-    said: str = Field(description="the lifecycle as a person needs it: what is still owed")
+    standing: Standing = Field(description="its status now, one word of a closed set, "
+                               "derived with `running` and `verified`")
+    said: str = Field(description="`standing` as a person needs it: what is still owed, "
+                      "and by which command")
     held: bool
+    rollback_hold: bool = Field(default=False, description="`lpam rollback` holds it at "
+                                "this generation: plans propose nothing for it")
     good: bool
     unit: UnitView | None = None
     command: list[str] | None = None
@@ -82,8 +97,14 @@ class CatalogRow(_View):
     service: str
     installed: bool
     running: bool
-    status: str | None = Field(description="the installed app's lifecycle, said; None: "
-                               "not installed")
+    status: AppStatus | None = Field(description="the installed app's lifecycle as the "
+                                     "record has it (InstalledApp.status); None: not "
+                                     "installed")
+    standing: Standing | None = Field(default=None, description="the installed app's "
+                                      "status now (InstalledApp.standing); None: not "
+                                      "installed")
+    said: str | None = Field(default=None, description="`standing` said, as the table's "
+                             "Status column shows it (InstalledApp.said)")
     description: str
     verified: bool | None = None
     damage: str | None = Field(default=None, description="what is wrong with the "
@@ -119,11 +140,23 @@ class Checkout(_View):
     applied_commit: str | None
 
 
+StrayFate = Literal["adopted", "replaced", "known after fetch"]
+
+
 class StrayView(_View):
+    """An app installed without lpam's record (LPAM's, or one whose record was lost), and
+    what the next apply does with it: as plan and apply decide it (the same observation)."""
+
     name: str
     generation: str
     stopped: bool
     pending: str | None
+    fate: StrayFate = Field(
+        default="replaced", description="adopted: it is a desired app as it is, taken over "
+        "in place (no script runs, it is not restarted); replaced: stopped and uninstalled "
+        "with its own scripts before any app is installed; known after fetch: which of the "
+        "two, `lpam plan` tells once it has fetched the desired commits")
+    adopted_as: str | None = Field(default=None, description="the desired app it is")
 
 
 LastApplyState = Literal["in progress", "deferred", "interrupted", "cut off", "succeeded",

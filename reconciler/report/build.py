@@ -24,7 +24,9 @@ from schemas.report import (
     LastApplyView,
     PlanView,
     RepositoryView,
+    Standing,
     StatusReport,
+    StrayFate,
     StrayView,
     UnitView,
 )
@@ -34,7 +36,7 @@ if TYPE_CHECKING:
     from reconciler.report.gather import Listing, Seen
     from schemas.catalog import CatalogApp
     from schemas.plan import Plan
-    from schemas.record import AppRecord, LastApply, StateRecord
+    from schemas.record import AppRecord, LastApply, StateRecord, Stray
 
 DAMAGED = "(damaged in the store: the next `lpam apply` fetches it anew)"
 
@@ -47,7 +49,8 @@ def build(seen: Seen, *, plan: Plan | str | None = None,
     last = record.last_apply
     state = None if last is None else last_state(last, alive=seen.alive)
     return StatusReport(
-        installed=[_installed(a, seen.lives.get(a.name)) for a in record.apps],
+        installed=[_installed(a, seen.lives.get(a.name), rolled_back=record.hold is not None)
+                   for a in record.apps],
         service_manager=seen.manager,
         last_apply=None if last is None or state is None else LastApplyView(
             **last.model_dump(), state=state, shown=last_shown(last, alive=seen.alive)),
@@ -57,8 +60,7 @@ def build(seen: Seen, *, plan: Plan | str | None = None,
                                for r in record.repositories if r.applied != r.commit],
         holds=holds(record),
         apps=[row for listing in seen.listings for row in _rows(listing, seen)],
-        strays=[StrayView(name=s.name, generation=s.generation, stopped=s.stopped,
-                          pending=s.pending) for s in record.strays],
+        strays=[_stray(s, seen) for s in record.strays],
         cutover=record.cutover, serial=record.serial, lineage=record.lineage,
         agent=seen.agent, override=seen.override, deferred=_deferral(last),
         plan=_plan(plan), gates=gates,
@@ -78,19 +80,58 @@ def running(app: AppRecord, live: UnitState | None) -> tuple[bool, bool]:
     return app.running, False
 
 
-def said(app: AppRecord, runs: bool) -> str:
-    """The lifecycle as a person needs it: what lpam did, and what is still owed."""
-    status = app.status
+def standing(app: AppRecord, live: UnitState | None) -> Standing:
+    """The app's status in one closed word, from the same answer as whether it runs
+    (`running`): a word and the Running column cannot disagree. An operator's stop and a
+    script under way are lpam's own facts; whether it runs is the manager's, and where
+    the manager cannot know its unit, the word says so (`unverified`)."""
+    runs, verified = running(app, live)
     if app.held:
-        if runs or status != "installed":
-            return f"{status} (an operator's stop did not finish: the next apply stops it)"
-        return f"{status} (stopped by operator)"
-    if not app.good:
-        return f"{status} (health not proven yet: the next apply checks it)"
-    return status
+        return "stopping" if runs or app.status != "installed" else "stopped by operator"
+    if app.status in ("installing", "starting"):
+        return "starting"
+    if app.status in ("stopping", "uninstalling"):
+        return "stopping"
+    if not verified:
+        return "unverified"
+    if runs:
+        return "running"
+    return "not running" if app.status == "running" else "installed"
 
 
-def _installed(app: AppRecord, live: UnitState | None) -> InstalledApp:
+def said(app: AppRecord, live: UnitState | None, *, rolled_back: bool = False) -> str:
+    """`standing` as a person needs it: what lpam did, what is still owed and by which
+    command. While a rollback holds, plans propose nothing: no text promises the next
+    apply's work then."""
+    word = standing(app, live)
+    owed = "held by `lpam rollback`" if rolled_back else ""
+
+    def then(work: str) -> str:
+        return f"{word} ({owed or work})"
+
+    if word == "stopped by operator":
+        return word if not owed else then("")
+    if word == "stopping":
+        if app.held:
+            return then("an operator's stop did not finish: the next apply stops it")
+        return then(f"{'stop' if app.status == 'stopping' else 'uninstall'}.sh cut off or "
+                    "failed: the next apply finishes it")
+    if word == "starting":
+        script = "install" if app.status == "installing" else "start"
+        return then(f"{script}.sh under way or cut off: the next apply finishes it")
+    if word == "not running":
+        return then("drift: the next apply starts it")
+    if word == "installed":
+        return then("not running: the next apply starts it")
+    text = f"unverified: recorded {app.status}" if word == "unverified" else word
+    if live is not None and live.known and not live.supervised:
+        text += "; its service manager died: the next apply restarts it under a new one"
+    elif not app.good:
+        text += "; health not proven yet: the next apply checks it"
+    return f"{text}; held by `lpam rollback`" if owed else text
+
+
+def _installed(app: AppRecord, live: UnitState | None, *, rolled_back: bool) -> InstalledApp:
     runs, verified = running(app, live)
     unit = None if live is None else UnitView(
         name=live.name, known=live.known, active=live.active, sub=live.sub,
@@ -99,9 +140,21 @@ def _installed(app: AppRecord, live: UnitState | None) -> InstalledApp:
     return InstalledApp(
         name=app.name, repository=app.repository, commit=app.commit,
         generation=app.generation, params=app.params, running=runs, verified=verified,
-        status=app.status, said=said(app, runs), held=app.held, good=app.good, unit=unit,
-        command=app.command, launch=app.launch, user=app.user, claims=sorted(app.claims),
+        status=app.status, standing=standing(app, live),
+        said=said(app, live, rolled_back=rolled_back), held=app.held,
+        rollback_hold=rolled_back, good=app.good, unit=unit, command=app.command,
+        launch=app.launch, user=app.user, claims=sorted(app.claims),
         claims_known=app.resources is not None)
+
+
+def _stray(stray: Stray, seen: Seen) -> StrayView:
+    """An app installed without a record, and what the next apply does with it: what the
+    plan decides from the same observation (gather.taken_over)."""
+    adopted_as = next((app for app, name in seen.adopt.items() if name == stray.name), None)
+    fate: StrayFate = "adopted" if adopted_as is not None else \
+        "known after fetch" if stray.folder is not None and not seen.decided else "replaced"
+    return StrayView(name=stray.name, generation=stray.generation, stopped=stray.stopped,
+                     pending=stray.pending, fate=fate, adopted_as=adopted_as)
 
 
 def _rows(listing: Listing, seen: Seen) -> list[CatalogRow]:
@@ -122,12 +175,14 @@ def _row(listing: Listing, app: CatalogApp, seen: Seen) -> CatalogRow:
                           commit=listing.commit, app=app.name, service=service_of(app),
                           installed=False, running=False, status=None,
                           description=app.description)
-    runs, verified = running(mine, seen.lives.get(mine.name))
+    live = seen.lives.get(mine.name)
+    runs, verified = running(mine, live)
     return CatalogRow(repository=listing.repository, ref=listing.ref,
                       commit=mine.commit[:12], app=app.name,
                       service=mine.service or service_of(app), installed=True,
-                      running=runs, status=said(mine, runs), description=app.description,
-                      verified=verified)
+                      running=runs, status=mine.status, standing=standing(mine, live),
+                      said=said(mine, live, rolled_back=seen.record.hold is not None),
+                      description=app.description, verified=verified)
 
 
 def service_of(app: CatalogApp) -> str:

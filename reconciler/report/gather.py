@@ -74,6 +74,8 @@ class Seen:
     alive: bool = False
     agent: AgentStatus | Unreadable | None = None
     override: LocalOverride | Unreadable | None = None
+    adopt: Mapping[str, str] = field(default_factory=dict)  # desired app -> LPAM's app
+    decided: bool = True  # whether what an apply does with each app LPAM installed is known
 
 
 def gather(layout: Layout, *, store: Objects | None = None,
@@ -93,9 +95,37 @@ def gather(layout: Layout, *, store: Objects | None = None,
     lives = {} if state is None else \
         {a.name: state(a.service) for a in record.apps if a.service is not None}
     found = () if store is None or not listed else tuple(listings(record, store))
+    adopt, decided = taken_over(layout, record)
     return Seen(record=record, listings=found, lives=lives,
                 manager=manager, alive=_alive(layout, record), agent=_agent(layout),
-                override=_override(layout))
+                override=_override(layout), adopt=adopt, decided=decided)
+
+
+def taken_over(layout: Layout, record: StateRecord) -> tuple[dict[str, str], bool]:
+    """What plan and apply do with each app LPAM installed, asked as they ask it
+    (engine/observe/adoption.py, the observation behind `Observed.adopt`), offline: the
+    desired apps it is as it is (desired app -> LPAM's app), and whether that is known —
+    not before the store holds the desired commits (the first `lpam plan` fetches them).
+    Read only on a car LPAM left an app on, from the default desired state's file."""
+    if not any(s.folder is not None for s in record.strays):
+        return {}, True
+    path = layout.desired_state
+    if not path.exists():
+        return {}, False
+    from reconciler.adapters.git import GitStore
+    from reconciler.core.documents import load_desired
+    from reconciler.engine.observe.adoption import adoptable
+    from reconciler.engine.observe.targets import Fetch, resolve
+
+    store = GitStore(layout)
+    try:
+        targets = resolve(load_desired(path), base_dir=path.resolve().parent, store=store,
+                          fetch=Fetch.OFFLINE, root=layout.root)
+        adopt = adoptable(layout, store, record, targets)
+    except LpamError:  # status answers; the plan says what is wrong
+        return {}, False
+    known = all(a.tree is not None for a in targets.apps)  # each folder read at its commit
+    return adopt, known
 
 
 def listings(record: StateRecord, store: Objects) -> list[Listing]:

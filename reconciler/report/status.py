@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from schemas.record import StateRecord
     from schemas.report import CatalogRow, StatusReport
 
-FIRST_ONLY_NEW = {"claims", "claims_known", "said"}
+FIRST_ONLY_NEW = {"claims", "claims_known", "said", "standing", "rollback_hold"}
 """What `app` never had: it keeps the shape readers from before several apps knew."""
 
 

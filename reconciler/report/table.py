@@ -12,7 +12,7 @@ to the operator's terminal) and cuts each cell at 80 characters (`--json` has it
 from __future__ import annotations
 
 from reconciler.base.text import columns, printable
-from schemas.report import InstalledApp, StatusReport, UnitView, Unreadable
+from schemas.report import InstalledApp, StatusReport, StrayView, UnitView, Unreadable
 
 COLUMNS = ("repository", "ref", "commit", "app", "service", "installed", "running", "status",
            "description")
@@ -30,9 +30,7 @@ def cell(value: object) -> str:
 
 
 def render(report: StatusReport) -> str:
-    lines = [f"Installed without a record: {cell(s.name)} (generation {cell(s.generation)}); "
-             "`lpam apply` stops and uninstalls it before installing any app."
-             for s in report.strays]
+    lines = [_stray(s) for s in report.strays]
     lines += [f"Repository {cell(r.repository)}: its copy in the store is damaged: "
               f"{printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
               "anew." for r in report.apps if r.damage is not None]
@@ -40,14 +38,35 @@ def render(report: StatusReport) -> str:
     if not report.apps:
         return "\n".join(
             ["No app repositories. Write a desired state and run `lpam apply`.", *lines])
-    cells = [[cell(getattr(r, c)) for c in COLUMNS] for r in report.apps]
+    # the Status column says the status word and what is owed (`said`), not the record's
+    # bare lifecycle: `running` there beside Running `no` was a contradiction
+    shown = {"status": "said"}
+    cells = [[cell(getattr(r, shown.get(c, c))) for c in COLUMNS] for r in report.apps]
     header = [c.capitalize() for c in COLUMNS]
     return "\n".join([*columns(header, cells), *lines])
 
 
+def _stray(stray: StrayView) -> str:
+    """An app installed without a record, and what `lpam apply` does with it: what the
+    plan does (the report's `fate`, from the same observation)."""
+    if stray.fate == "adopted":
+        return (f"Installed by LPAM: {cell(stray.name)}, the desired app "
+                f"{cell(stray.adopted_as)} as it is: `lpam apply` adopts it in place (no "
+                "script runs, it is not restarted).")
+    if stray.fate == "known after fetch":
+        return (f"Installed by LPAM: {cell(stray.name)}; whether `lpam apply` adopts it in "
+                "place or stops and uninstalls it is known once `lpam plan` has fetched the "
+                "desired commits.")
+    return (f"Installed without a record: {cell(stray.name)} (generation "
+            f"{cell(stray.generation)}); `lpam apply` stops and uninstalls it before "
+            "installing any app.")
+
+
 def unit_said(unit: UnitView) -> str:
+    """The unit as its manager answered; one it cannot know leaves the status unverified
+    (whatever that status is: a stopped app's scripts reported no running)."""
     return unit.said if unit.known else \
-        f"{unit.said}: running is what the app's scripts reported (unverified)"
+        f"{unit.said}: the status is lpam's record, unverified"
 
 
 def _footer(report: StatusReport) -> list[str]:

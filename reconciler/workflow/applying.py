@@ -227,12 +227,14 @@ def standing(machine: Machine, apps: Sequence[AppRecord] | None = None) -> str:
 
 
 def _standing(machine: Machine, app: AppRecord) -> str:
-    where = f"{app.name} {app.status}"
-    if app.service is not None and app.status == "running":
-        state = machine.services.state(app.service)
-        where += f" ({state.describe()})" if state.known else \
-            f" (unverified: {state.describe()}; the scripts reported success)"
-    return where
+    """The app in the status report's words (reconciler/report/build.py), with its unit as
+    its manager answers: an app adopted in place ran no script, so nothing here says what
+    scripts reported."""
+    from reconciler.report.build import said
+
+    state = None if app.service is None else machine.services.state(app.service)
+    unit = "" if state is None else f" ({state.describe()})"
+    return f"{app.name} {said(app, state)}{unit}"
 
 
 def _release(machine: Machine, report: Report) -> None:

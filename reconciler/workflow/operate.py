@@ -76,9 +76,28 @@ def roll_back(machine: Machine, *, file: Path | None, force: bool, options: Appl
                                  script_timeout=options.script_timeout, report=report,
                                  gate=gate, gate_wait=options.wait)
         entries = previous_good(ctx)
+        kept = stays_stopped(ctx.record, entries)
+        if kept:  # said before the question: the answer covers it
+            report(Progress(kept))
         if not confirm(entries):
             return None
         return rollback(ctx, entries, desired, progress=lambda text: report(Progress(text)))
+
+
+def stays_stopped(record: StateRecord, entries: list[HistoryEntry]) -> str:
+    """The apps an operator stopped that a rollback to `entries` leaves stopped (an
+    operator's stop holds through a rollback: it restores generations and parameters,
+    and starts no app the operator stopped), and how to start them; "" when none."""
+    back = {e.app for e in entries}
+    held = [a.name for a in record.apps if a.held and a.name in back]
+    if not held:
+        return ""
+    one = len(held) == 1
+    start = f"`lpam start {held[0]}`" if one else \
+        "`lpam start` (or `lpam start APP`) starts them"
+    return (f"{', '.join(held)} {'was' if one else 'were'} stopped by an operator (`lpam "
+            f"stop`) and {'stays' if one else 'stay'} stopped after the rollback: "
+            f"{start + ' starts it' if one else start}.")
 
 
 def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine,
@@ -171,13 +190,19 @@ def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | 
     applied = ctx.record.desired
     hold = Hold(desired=applied.fingerprint if applied is not None
                 else fingerprint(desired), targets=entries)
+    kept = stays_stopped(ctx.record, entries)
+    stopped = {a.name for a in ctx.record.apps if a.held}
     with gates_passed(ctx, progress):
         ctx.save(ctx.record.model_copy(update={"hold": hold}))
         made = rollback_plan(ctx.record, entries, generations.present(ctx.layout),
                              now=ctx.clock(), lpam_version=__version__)
         if made.steps:
             execute(made, ctx, progress=progress, record_result=False)
+        for app in ctx.record.apps:  # a generation installed anew keeps the operator's stop
+            if app.name in stopped and not app.held:
+                ctx.save_app(app.name, app.model_copy(update={"held": True}))
     said = ", ".join(f"{e.app} ({e.generation}, commit {e.commit[:12]})" for e in entries)
     return (f"Rolled back to {said}. "
             f"{'It holds' if len(entries) == 1 else 'They hold'}: plan and apply propose "
-            "nothing until the desired state changes (or `lpam apply --release`).")
+            "nothing until the desired state changes (or `lpam apply --release`)."
+            + (f" {kept}" if kept else ""))

@@ -73,6 +73,50 @@ def test_an_app_lpam_installed_from_the_desired_commit_is_adopted_without_a_rest
     assert lpam("plan", "--detailed-exitcode").returncode == 0
 
 
+def test_status_says_what_plan_does_with_the_app_lpam_installed(
+    lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
+) -> None:
+    """Status derives what an apply does with LPAM's app from the observation plan uses
+    (issue 30, item 3): adopted in place when plan adopts it, stopped and uninstalled when
+    plan takes it over, and not guessed before the desired commit is fetched. The apply
+    that adopts it says nothing of scripts, for none ran (item 14)."""
+    repo = make_repo("apps.git")
+    commit = apps_repo(repo)
+    lpam_vehicle(lpam, repo, commit)
+    imported(lpam, git_daemon.url("apps.git"))
+    at = f"lpam --root {lpam.root}"  # each suggested command, as it runs (issue 30, 13)
+    before = lpam("status").stdout
+    assert f"`{at} apply` stops and uninstalls it before" not in before, before
+    assert "stops and uninstalls it before installing" not in before, before
+    assert f"known once `{at} plan` has fetched the desired commits" in before, before
+    assert "adopted in place" in lpam("plan").stdout
+    shown = lpam("status").stdout
+    assert f"Installed by LPAM: alpha, the desired app alpha as it is: `{at} apply` adopts " \
+        "it in place (no script runs, it is not restarted)." in shown, shown
+    assert "stops and uninstalls" not in shown, shown
+    [stray] = lpam.status()["strays"]
+    assert (stray["fate"], stray["adopted_as"]) == ("adopted", "alpha")
+    done = lpam("apply", "--yes")
+    assert done.returncode == 0, done.stderr
+    assert "reported" not in done.stdout and "alpha unverified: recorded running" in \
+        done.stdout, done.stdout
+    assert lpam.events() == []
+
+
+def test_status_says_an_app_lpam_installed_differently_is_stopped_and_uninstalled(
+    lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
+) -> None:
+    repo = make_repo("apps.git")
+    commit = apps_repo(repo)
+    lpam_vehicle(lpam, repo, commit, edited=True)
+    imported(lpam, git_daemon.url("apps.git"))
+    assert "adopted" not in lpam("plan").stdout
+    shown = lpam("status").stdout
+    at = f"lpam --root {lpam.root}"  # each suggested command, as it runs (issue 30, 13)
+    assert f"`{at} apply` stops and uninstalls it before installing any app." in shown, shown
+    assert lpam.status()["strays"][0]["fate"] == "replaced"
+
+
 def test_an_app_lpam_installed_differently_is_taken_over_with_its_scripts(
     lpam: Lpam, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:

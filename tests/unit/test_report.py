@@ -104,7 +104,7 @@ def test_every_face_says_what_the_one_report_says() -> None:
     # the words beside the flags: the lifecycle said, the holds, the installed names
     text = table.render(report)
     held = next(a for a in report.installed if a.name == "recorder")
-    assert held.said == "installed (stopped by operator)" and held.said in text
+    assert held.said == "stopped by operator" and held.said in text
     assert [h.what for h in report.holds] == [
         "recorder was stopped by `lpam stop` and stays stopped"]
     assert report.holds[0].what in text
@@ -113,8 +113,10 @@ def test_every_face_says_what_the_one_report_says() -> None:
                                                    for a in report.installed
                                                    if a.unit is not None]
     summary = summary_of(report)
-    assert (summary["app"], summary["running"]) == ("controller", "no")
-    assert summary["apps"] == "controller running, recorder installed, tracker running"
+    assert (summary["app"], summary["running"], summary["status"]) == (
+        "controller", "no", "not running")  # one word with `running`, never "running"
+    assert summary["apps"] == \
+        "controller not running, recorder stopped by operator, tracker running"
     assert summary["applied_revision"] == "d" * 40
     assert json_of(report)["app"]["name"] == summary["app"]
 

@@ -42,7 +42,9 @@ def test_the_bare_name_prints_the_usage_and_exits_2(
 def _installed(name: str, unit: UnitView | None) -> InstalledApp:
     return InstalledApp(name=name, repository="fleet/apps", commit="c" * 40,
                         generation="g1", running=unit is not None, verified=unit is not None,
-                        status="installed", said="installed", held=False, good=True,
+                        status="installed",
+                        standing="running" if unit is not None else "unverified",
+                        said="installed", held=False, good=True,
                         unit=unit, claims_known=True)
 
 

@@ -90,7 +90,13 @@ def test_each_app_shows_its_lifecycle_status(layout: Layout, state: AppStatus) -
     assert (apps["beta"]["status"], apps["beta"]["installed"]) == (None, False)
     assert shown["app"]["status"] == state
     header, alpha, beta = status.as_table(layout, store=blobs()).splitlines()
-    assert "Status" in header.split() and state in alpha.split() and state not in beta
+    # the table says the status word (the record's lifecycle is the JSON's `status`) and,
+    # for a script under way or cut off, which script
+    word = {"installing": "starting", "starting": "starting", "stopping": "stopping",
+            "uninstalling": "stopping"}.get(state, "unverified:")
+    assert "Status" in header.split() and word in alpha.split() and word not in beta
+    script = {"installing": "install.sh", "uninstalling": "uninstall.sh"}.get(state, state)
+    assert script in alpha, alpha
 
 
 def test_a_file_too_large_leaves_the_rest_of_the_answer(layout: Layout) -> None:
@@ -145,7 +151,8 @@ def test_an_app_installed_without_a_record_is_shown(layout: Layout) -> None:
     lost = StateRecord(strays=[Stray(name="alpha", generation="g1")])
     write_record(layout, lost)
     assert status.as_json(layout, store=Blobs({}))["strays"] == [
-        {"name": "alpha", "generation": "g1", "stopped": False, "pending": None}]
+        {"name": "alpha", "generation": "g1", "stopped": False, "pending": None,
+         "fate": "replaced", "adopted_as": None}]
     table = status.as_table(layout, store=Blobs({}))
     assert "No app repositories" in table and "without a record: alpha" in table
 

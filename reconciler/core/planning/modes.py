@@ -28,15 +28,16 @@ def steps_back(record: StateRecord, previous: Sequence[AppRecord],
                generations: frozenset[GenerationKey]) -> list[Step]:
     """The steps back to `previous` (a failed cutover's rollback, `lpam rollback`). The
     car must not be left with no app: each previous app is started again unless an
-    operator had stopped it (after a crash its status may say `installing` though it
-    ran); one whose stop.sh just failed is brought back up, not stopped again."""
+    operator had stopped it — then, or now: an operator's stop holds through a rollback
+    (after a crash its status may say `installing` though it ran); one whose stop.sh just
+    failed is brought back up, not stopped again."""
     for app in record.apps:
         before = next((p for p in previous if p.name == app.name), None)
         if before is not None and app.status == "stopping" and \
                 app.generation == before.generation:
             record = record.with_app(app.name, app.model_copy(update={"status": "starting"}))
     targets = [target_of(p) for p in previous]
-    held = {p.name for p in previous if p.held}
+    held = {p.name for p in previous if p.held} | {a.name for a in record.apps if a.held}
     return order(plan_set(record, targets, generations, verify=False, stopped=held).steps)
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from datetime import datetime
 
 from reconciler.base.errors import PlanError, StalePlanError
+from reconciler.core.planning.decision import Held
 from reconciler.core.planning.diff import apps_planned, diff
 from reconciler.core.planning.graph import steps_for
 from reconciler.core.planning.model import UNKNOWN, Observed, Targets
@@ -29,12 +30,33 @@ def make_plan(
     if hold is not None:
         changes = [Change(address="hold", action=Action.NOOP, reason=hold, warnings=[hold])]
         steps: list[Step] = []
+        stopped = [a.name for a in observed.record.apps if a.held]
     else:
         apps = apps_planned(targets, observed)  # each app decided once: changes and steps
         changes = diff(targets, observed, apps)
         steps = steps_for(changes, targets, observed, apps)
+        stopped = [d.app for d in apps.decisions
+                   if isinstance(d.reason, Held) and d.reason.operator]
+    summary = None
+    if all(c.action is Action.NOOP for c in changes) and (hold is not None or stopped):
+        summary = held_summary(observed.record, rollback=hold is not None, stopped=stopped)
     return seal(observed.record, changes, steps, now=now, lpam_version=lpam_version,
-                offline=offline)
+                offline=offline, summary=summary)
+
+
+def held_summary(record: StateRecord, *, rollback: bool, stopped: list[str]) -> str | None:
+    """A plan with nothing to do because holds keep the machine from the desired state:
+    never "the machine matches the desired state" then, but each hold and how it ends."""
+    holds = []
+    if rollback and record.hold is not None:
+        holds.append(f"`lpam rollback` holds generation {record.hold.name} (a change of the "
+                     "desired state or `lpam apply --release` ends it)")
+    if stopped:
+        one = len(stopped) == 1
+        start = f"`lpam start {stopped[0]}` starts it" if one else \
+            "`lpam start` starts them"
+        holds.append(f"{', '.join(stopped)} stopped by `lpam stop` ({start})")
+    return f"No changes because of the holds in force: {'; '.join(holds)}." if holds else None
 
 
 def seal(record: StateRecord, changes: list[Change], steps: list[Step], *, now: datetime,

@@ -142,9 +142,9 @@ def summary_of(shown: StatusReport) -> dict[str, str]:
     return {
         "app": "None" if app is None else app.name,
         "generation": "" if app is None else app.generation,
-        "status": "" if app is None else app.status,
+        "status": "" if app is None else app.standing,
         "running": "yes" if app is not None and app.running else "no",
-        "apps": ", ".join(f"{a.name} {a.status}" for a in shown.installed) or "None",
+        "apps": ", ".join(f"{a.name} {a.standing}" for a in shown.installed) or "None",
         "applied_revision": "" if agent is None else agent.applied_revision or "",
         "desired_revision": "" if agent is None else agent.desired_revision or "",
         "override": "none" if local is None else "? since ?"
