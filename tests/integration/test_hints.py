@@ -138,6 +138,16 @@ def test_a_resume_hint_and_a_stops_hint_run_as_printed_from_elsewhere(
         [apply] = suggested(planned.stdout.split("Saved the plan")[1])
         applied = verbatim(apply, elsewhere)
         assert applied.returncode == 0 and "Apply complete" in applied.stdout, applied.stderr
+
+        # the hold's own way out applies the file it holds against, not the default one
+        assert lpam_in(here, *root, "stop").returncode == 0
+        table = lpam_in(here, *root, "status").stdout
+        release = next(c for c in suggested(table) if c.endswith(" --release"))
+        assert str(here / "my state.yaml") in shlex.split(release), release
+        released = verbatim(release, elsewhere)
+        assert released.returncode == 0, released.stderr
+        shown = lpam_in(elsewhere, "--root", str(here / "root"), "status", "--json")
+        assert json.loads(shown.stdout)["holds"] == [], shown.stdout
     finally:
         lpam_in(here, *root, "services", "shutdown")
 
