@@ -89,7 +89,7 @@ class VehicleGate:
                 closed = "; ".join(s.describe() for s in states if not s.open)
                 if now >= deadline:
                     raise Deferred(
-                        "the cutover is deferred: " + closed,
+                        "the update gates are closed: " + closed,
                         hint="everything is prepared and the running app is untouched; "
                         "the next apply or agent pass tries again (`--wait SECONDS` waits "
                         "for the gates, `lpam gates` shows them)",

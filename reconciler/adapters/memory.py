@@ -341,7 +341,7 @@ class MemoryGate:
                 self.holds += 1
                 return self
             progress("waiting for the gates")
-        raise Deferred("the cutover is deferred: "
+        raise Deferred("the update gates are closed: "
                        + "; ".join(s.describe() for s in states if not s.open),
                        gates=tuple(s.name for s in states if not s.open))
 

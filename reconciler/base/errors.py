@@ -26,6 +26,7 @@ class LpamError(Exception):
     length, whatever value it echoes."""
 
     exit_code = 1
+    word = "error"  # what the CLI's line begins with: what kind of ending this is
 
     def __init__(self, message: str, *, hint: str | None = None,
                  details: list[str] | None = None) -> None:
@@ -40,7 +41,7 @@ class LpamError(Exception):
     def render(self) -> str:
         """The text the CLI prints: the message, any details (such as the last lines of a
         failed app's output) indented below it, then the hint on its own line."""
-        text = f"error: {self.message}"
+        text = f"{self.word}: {self.message}"
         for line in self.details:
             text += f"\n  | {printable(line)}"
         if self.hint:
@@ -193,10 +194,12 @@ class VehicleSourceError(LpamError):
 class Deferred(LpamError):
     """A gate was closed when the cutover was due (the vehicle moving, a lock held, outside
     a window). Not a failure: everything was prepared, the running app is untouched, and the
-    next pass tries again. 75 is EX_TEMPFAIL of sysexits(3). `gates`: the names of the
-    gates that were closed (vehicle, window, lock), which the state record keeps."""
+    next pass tries again. 75 is EX_TEMPFAIL of sysexits(3). Said as `deferred:`, never
+    `error:`: the README tells the user a deferral is not a failure. `gates`: the names of
+    the gates that were closed (vehicle, window, lock), which the state record keeps."""
 
     exit_code = 75
+    word = "deferred"
 
     def __init__(self, message: str, *, hint: str | None = None,
                  gates: tuple[str, ...] = ()) -> None:

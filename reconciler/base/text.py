@@ -34,6 +34,12 @@ def shorten(text: str, limit: int = MESSAGE_LIMIT) -> str:
         f"{text[len(text) - keep // 4:]}"
 
 
+def counted(number: int, noun: str, plural: str | None = None) -> str:
+    """`number noun`, the noun in the plural unless there is one: "1 app", "2 apps",
+    "1 repository" — never "1 apps"."""
+    return f"{number} {noun if number == 1 else plural or noun + 's'}"
+
+
 def columns(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     """The lines of a table: each column as wide as its widest cell, two spaces between
     columns, no trailing spaces (`lpam status`, `lpam fleet status`)."""

@@ -16,6 +16,7 @@ import argparse
 import gc
 import json
 import os
+import shlex
 import signal
 import sys
 import threading
@@ -26,13 +27,14 @@ from typing import TYPE_CHECKING, Any
 from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS, Layout
-from reconciler.base.text import printable
-from reconciler.frontends.console import Terminal, debug_log, exit_code, terminate
+from reconciler.base.text import columns, counted, printable
+from reconciler.frontends.console import Calling, Terminal, debug_log, exit_code, terminate
 from reconciler.workflow.defaults import SCRIPT_TIMEOUT
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
     from reconciler.workflow.applying import ApplyOptions
     from reconciler.workflow.events import Event
+    from reconciler.workflow.history import Made
     from reconciler.workflow.machine import Machine
     from schemas.record import HistoryEntry
 
@@ -89,6 +91,12 @@ OPTIONS: dict[str, Option] = {
 }
 """Every option more than one command takes, declared once. `--lock-timeout` defaults to
 None: each use case knows how long its lock waits (reconciler/workflow/defaults.py)."""
+GLOBAL = ("lock-timeout", "script-timeout", "network-timeout", "services", "keep-generations")
+"""The options the README names beside `--root`: each is accepted before the command as
+`--root` is (`lpam --services systemd apply`) and after it by the commands that use it.
+argparse copies a subcommand's defaults over what the main parser read, so the
+subcommands declare them with `default=SUPPRESS` and the main parser alone holds the
+defaults: written after the command, an option wins; before it, it is no longer lost."""
 
 New = Callable[[str, str], argparse.ArgumentParser]
 
@@ -104,6 +112,9 @@ def _parser() -> argparse.ArgumentParser:
         description="Make this vehicle's apps match a declared desired state.",
     )
     parser.add_argument("--version", action="version", version=f"lpam {__version__}")
+    for name in GLOBAL:
+        flags, options = OPTIONS[name]
+        parser.add_argument(*flags, **options)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def new(name: str, what: str) -> argparse.ArgumentParser:
@@ -120,7 +131,8 @@ def _add(parser: argparse.ArgumentParser, *names: str, **override: Any) -> None:
     fields (`help=`, `default=`) of each of them."""
     for name in names:
         flags, options = OPTIONS[name]
-        parser.add_argument(*flags, **{**options, **override})
+        own = {"default": argparse.SUPPRESS} if name in GLOBAL else {}
+        parser.add_argument(*flags, **{**options, **own, **override})
 
 
 def _plan_apply(new: New) -> None:
@@ -273,10 +285,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     signal.signal(signal.SIGTERM, terminate)
     layout = _layout(args)
+    for name, value in vars(args).items():
+        if isinstance(value, Path):  # said back in hints and records: run from anywhere
+            setattr(args, name, Path(os.path.abspath(value)))
+    args.calling = Calling.of(layout.root, services=args.services)
+    spell = args.calling.spell
     return exit_code(
         lambda: int(COMMANDS[args.command](args, layout)), bug=lambda: debug_log(layout),
-        failed=lambda exc: exc.render(), interrupted=lambda: _interrupted(args),
+        failed=lambda exc: spell(exc.render()), interrupted=lambda: spell(_interrupted(args)),
         internal=lambda log: f"error: internal error in lpam {__version__}; details in {log}")
+
+
+def _say(args: argparse.Namespace, text: str, *, err: bool = False) -> None:
+    """Print `text` with every command it suggests spelled for this root (`Calling`)."""
+    calling: Calling = getattr(args, "calling", Calling())
+    print(calling.spell(text), file=sys.stderr if err else sys.stdout)
+
+
+def _terminal(args: argparse.Namespace) -> Terminal:
+    return Terminal(getattr(args, "calling", None))
 
 
 def _interrupted(args: argparse.Namespace) -> str:
@@ -289,26 +316,33 @@ def _interrupted(args: argparse.Namespace) -> str:
 CHANGES_THE_CAR = ("apply", "sync", "agent", "start", "stop", "restart", "rollback")
 
 
-def again(args: argparse.Namespace) -> str:
-    """The command that goes on from where this one stopped, as the user would type it:
-    the same root and desired-state file (a saved plan is stale once part of it ran; a
-    rollback's -f names only the gates' file, and the apply that finishes it holds to the
-    generation it returns to)."""
-    import shlex
+RESUMED_WITH = ("script-timeout", "network-timeout", "lock-timeout", "keep-generations")
+"""The options a resumed command needs as this one had them (a long install needs its
+longer --script-timeout again): repeated when given other than their defaults."""
 
+
+def again(args: argparse.Namespace) -> str:
+    """The command that goes on from where this one stopped, as the user would type it in
+    any directory: the same root and desired-state file, absolute (a saved plan is stale
+    once part of it ran; a rollback's -f names only the gates' file, and the apply that
+    finishes it holds to the generation it returns to)."""
     from reconciler.workflow.operate import resumed_by
 
-    parts = ["lpam"]
-    root = getattr(args, "root", None)
-    if root:
-        parts += ["--root", str(root)]
+    calling: Calling = getattr(args, "calling", None) or Calling.of(
+        _layout(args).root, services=getattr(args, "services", None))
+    parts = calling.words
+    for name in RESUMED_WITH:
+        flags, options = OPTIONS[name]
+        value = getattr(args, name.replace("-", "_"), options["default"])
+        if value != options["default"]:
+            parts += [flags[0], f"{value:g}" if isinstance(value, float) else str(value)]
     parts.append(resumed_by(args.command))
     if args.command in ("start", "stop", "restart") and getattr(args, "app", None):
         parts.append(args.app)  # a stop of one app goes on with that app, no other
     if args.command != "rollback" and getattr(args, "file", None) is not None:
-        parts += ["-f", str(args.file)]
+        parts += ["-f", os.path.abspath(args.file)]
     if getattr(args, "config", None) is not None:
-        parts += ["--config", str(args.config)]
+        parts += ["--config", os.path.abspath(args.config)]
     return shlex.join(parts)
 
 
@@ -345,14 +379,15 @@ def cmd_plan(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.core.planning.render import render
     from reconciler.workflow.planning import plan_file
 
-    plan = plan_file(_machine(args, layout), _desired_path(args, layout), report=Terminal(),
+    plan = plan_file(_machine(args, layout), _desired_path(args, layout), report=_terminal(args),
                      offline=args.offline, out=args.out, lock_timeout=args.lock_timeout)
     if args.json:
         print(plan.model_dump_json(indent=2))
     else:
-        print(render(plan))
+        _say(args, render(plan))
         if args.out is not None:
-            print(f"\nSaved the plan to {args.out}; apply it with `lpam apply {args.out}`.")
+            _say(args, f"\nSaved the plan to {args.out}; apply it with "
+                 f"`lpam apply {shlex.quote(str(args.out))}`.")
     if args.detailed_exitcode and plan.has_changes:
         return EXIT_CHANGES
     return EXIT_OK
@@ -368,16 +403,17 @@ def cmd_apply(args: argparse.Namespace, layout: Layout) -> int:
     if args.planfile is not None:
         print()
         done = apply_plan_file(_machine(args, layout), args.planfile, options=options,
-                               report=Terminal())
+                               report=_terminal(args))
     else:
         done = apply_file(_machine(args, layout), _desired_path(args, layout),
                           options=options, confirm=lambda plan: _confirm(args),
-                          report=Terminal())
+                          report=_terminal(args))
     if done.cancelled:
         print("Apply cancelled; nothing was changed.")
         return EXIT_ERROR
     if done.steps:
-        print(f"\nApply complete: {done.steps} steps; {done.app}. Script output: {done.log}")
+        print(f"\nApply complete: {counted(done.steps, 'step')}; {done.app}. "
+              f"Script output: {done.log}")
     return EXIT_OK
 
 
@@ -393,10 +429,10 @@ def cmd_operate(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.operate import operate_installed
     from schemas.operator import OperatorAction
 
-    print(operate_installed(_machine(args, layout), OperatorAction(args.command),
-                            file=args.file, force=args.force,
-                            options=_options(args, wait=args.wait), report=Terminal(),
-                            app=args.app))
+    _say(args, operate_installed(_machine(args, layout), OperatorAction(args.command),
+                                 file=args.file, force=args.force,
+                                 options=_options(args, wait=args.wait),
+                                 report=_terminal(args), app=args.app))
     return EXIT_OK
 
 
@@ -414,11 +450,11 @@ def cmd_rollback(args: argparse.Namespace, layout: Layout) -> int:
 
     done = roll_back(_machine(args, layout), file=args.file, force=args.force,
                      options=_options(args, wait=args.wait), confirm=confirm,
-                     report=Terminal())
+                     report=_terminal(args))
     if done is None:
         print("Rollback cancelled; nothing was changed.")
         return EXIT_ERROR
-    print(done)
+    _say(args, done)
     return EXIT_OK
 
 
@@ -446,7 +482,11 @@ def cmd_gates(args: argparse.Namespace, layout: Layout) -> int:
 
 
 def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
-    """The installed apps' output, or APP's (reconciler/workflow/logs.py says from where)."""
+    """The installed apps' output, or APP's (reconciler/workflow/logs.py says from where).
+    Ctrl-C is how a follow (`-f`) ends: it ends quietly with 0, as `journalctl -f` does —
+    not with "interrupted: nothing was changed" under the app's last line."""
+    from reconciler.base.errors import Terminated
+    from reconciler.frontends.console import EXIT_TERMINATED
     from reconciler.workflow.logs import app_logs, new_output
 
     machine = _machine(args, layout)
@@ -456,8 +496,14 @@ def cmd_logs(args: argparse.Namespace, layout: Layout) -> int:
     for line in shown.lines:
         print(line)
     if args.follow:
-        for line in new_output(machine, shown):
-            print(line, flush=True)
+        sys.stdout.flush()
+        try:
+            for line in new_output(machine, shown):
+                print(line, flush=True)
+        except KeyboardInterrupt:
+            return EXIT_OK
+        except Terminated:
+            return EXIT_TERMINATED
     return EXIT_OK
 
 
@@ -471,15 +517,31 @@ def cmd_history(args: argparse.Namespace, layout: Layout) -> int:
     if not made:
         print("No history yet: no apply has made an app current.")
         return EXIT_OK
-    sets = len({m.set for m in made}) < len(made)  # several apps: one apply, one set
-    for before, m in zip([None, *made], made):
-        if sets and before is not None and before.set != m.set:
-            print()  # the sets of apps, one block each
-        h = m.entry
-        params = " ".join(f"{k}={v}" for k, v in sorted(h.params.items())) or "-"
-        print(f"{'*' if m.current else ' '} {h.time}  {h.app:<20} {h.generation}  "
-              f"{h.repository}@{h.commit[:12]}  {h.result:<11}  {params}")
+    print("\n".join(history_lines(made)))
     return EXIT_OK
+
+
+HISTORY_HEADER = ("Now", "Time", "App", "Generation", "Repository", "Commit", "Result",
+                  "Params")
+
+
+def history_lines(made: Sequence[Made]) -> list[str]:
+    """`lpam history` as a table: a header, then each generation made current, oldest
+    first, `*` in the first column for what is installed now. Every column is as wide as
+    its widest cell (a long repository name no longer shifts the rest of its row); with
+    several apps, a blank line between the sets of apps, one block per apply."""
+    rows = [["*" if m.current else "", m.entry.time, m.entry.app, m.entry.generation,
+             m.entry.repository, m.entry.commit[:12], m.entry.result,
+             " ".join(f"{k}={v}" for k, v in sorted(m.entry.params.items())) or "-"]
+            for m in made]
+    header, *lines = columns(HISTORY_HEADER, [[printable(c) for c in r] for r in rows])
+    sets = len({m.set for m in made}) < len(made)  # several apps: one apply, one set
+    shown = [header]
+    for before, m, line in zip([None, *made], made, lines):
+        if sets and before is not None and before.set != m.set:
+            shown.append("")  # the sets of apps, one block each
+        shown.append(line)
+    return shown
 
 
 def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
@@ -488,15 +550,14 @@ def cmd_sync(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.agent import one_pass, settings
 
     config = settings(layout, args.config)
-    done = one_pass(_machine(args, layout), config, wait=args.wait, report=Terminal(),
+    done = one_pass(_machine(args, layout), config, wait=args.wait, report=_terminal(args),
                     options=_options(args, keep_generations=args.keep_generations),
                     fetch_only=args.fetch_only, bundle=args.bundle)
     revision = done.revision[:12] if done.revision else "none"
-    print(f"Sync: {done.result} (revision {revision})"
-          + (f": {done.reason}" if done.reason else ""),
-          file=sys.stderr if done.code else sys.stdout)
+    _say(args, f"Sync: {done.result} (revision {revision})"
+         + (f": {done.reason}" if done.reason else ""), err=bool(done.code))
     if done.code and done.hint:
-        print(f"  hint: {done.hint}", file=sys.stderr)
+        _say(args, f"  hint: {done.hint}", err=True)
     return done.code
 
 
@@ -530,7 +591,7 @@ def cmd_install_ble(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.agent import install_ble
 
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
-    for path in install_ble(_machine(args, layout), command, report=Terminal()):
+    for path in install_ble(_machine(args, layout), command, report=_terminal(args)):
         print(f"Wrote {path}")
     print("The Bluetooth service answers the phone app (Privzone) as bluezone did; "
           "bluezone's own unit is stopped while it runs (Conflicts=).")
@@ -543,7 +604,7 @@ def cmd_install_agent(args: argparse.Namespace, layout: Layout) -> int:
 
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
     written, config = install_agent(_machine(args, layout), command, config_file=args.config,
-                                    report=Terminal())
+                                    report=_terminal(args))
     for path in written:
         print(f"Wrote {path}")
     print(f"The agent follows {config.source.url} ({config.source.branch}) every "
@@ -555,8 +616,9 @@ def cmd_bundle(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.packing import make_bundle
 
     count = make_bundle(layout, args.out, url=args.source, branch=args.branch,
-                        network_timeout=args.network_timeout, report=Terminal())
-    print(f"Wrote {args.out}: the desired state and {count} repositories it pins; on the "
+                        network_timeout=args.network_timeout, report=_terminal(args))
+    print(f"Wrote {args.out}: the desired state and "
+          f"{counted(count, 'repository', 'repositories')} it pins; on the "
           f"car: `lpam sync --bundle {args.out.name}`.")
     return EXIT_OK
 
@@ -576,14 +638,15 @@ def cmd_pin(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.pin import pin
 
     path = _desired_path(args, layout)
-    done = pin(_machine(args, layout), path, report=Terminal(), catalogs=args.catalogs,
+    done = pin(_machine(args, layout), path, report=_terminal(args), catalogs=args.catalogs,
                write=not args.dry_run, lock_timeout=args.lock_timeout)
     if not done:
         print(f"{path}: every repository is already pinned to a full commit.")
     elif args.dry_run:
         print(f"{path} was not changed (--dry-run).")
     else:
-        print(f"Pinned {len(done)} repositories in {path}; review and commit it.")
+        print(f"Pinned {counted(len(done), 'repository', 'repositories')} in {path}; "
+              "review and commit it.")
     return EXIT_OK
 
 
@@ -618,14 +681,14 @@ def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
         print(json.dumps(status.as_json(layout, state=services.state, manager=services.kind),
                          indent=2))
     else:
-        print(status.as_table(layout, state=services.state, manager=services.kind))
+        _say(args, status.as_table(layout, state=services.state, manager=services.kind))
     return EXIT_OK
 
 
 def cmd_validate(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.validation import Kind, validate
 
-    print(validate(Path(args.path), None if args.kind is None else Kind(args.kind)))
+    _say(args, validate(Path(args.path), None if args.kind is None else Kind(args.kind)))
     return EXIT_OK
 
 
@@ -636,7 +699,8 @@ def cmd_import(args: argparse.Namespace, layout: Layout) -> int:
     if args.output is None:
         print(text, end="")
     else:
-        print(f"Wrote {args.output}; review it, then `lpam plan -f {args.output}`.")
+        _say(args, f"Wrote {args.output}; review it, then "
+             f"`lpam plan -f {shlex.quote(str(args.output))}`.")
     return EXIT_OK
 
 

@@ -12,9 +12,13 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
+import shlex
 import sys
 import traceback
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 from reconciler import __version__
@@ -113,29 +117,68 @@ def _closed() -> int:
     return 0
 
 
+SUGGESTED = re.compile(r"(?<!by )`lpam(?=[ `])(?! --)")
+"""A command lpam suggests, as every layer writes one: in backquotes, from `lpam`. One
+that begins with an option (a resume command: cli.again) is spelled in full already; one
+after "by" names what an earlier command did ("held by `lpam rollback`"), to run no more."""
+
+
+@dataclass(frozen=True)
+class Calling:
+    """How a command lpam suggests must call lpam to act where this one acted. The layers
+    below write a suggestion as `lpam apply`: this lpam, on this car. On a car (root /)
+    that is what the user types; on another root, copied as printed it would act on / —
+    so the face spells each one with the root, absolute (it is run from any directory),
+    and the service manager named on the command line. Texts are spelled where they are
+    printed, so that every face derives its commands from one value."""
+
+    options: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, root: Path, *, services: str | None = None) -> Calling:
+        words = [] if root == Path("/") else ["--root", str(root)]
+        if services is not None:
+            words += ["--services", services]
+        return cls(tuple(words))
+
+    @property
+    def words(self) -> list[str]:
+        """`lpam` and the options every suggested command repeats."""
+        return ["lpam", *self.options]
+
+    def spell(self, text: str) -> str:
+        """`text` with each command it suggests spelled as the user must type it here."""
+        if not self.options:
+            return text
+        spelled = "`" + shlex.join(self.words)
+        return SUGGESTED.sub(lambda found: spelled, text)
+
+
 class Terminal:
     """Where the use cases' events go in a terminal: notes to stderr, progress to stdout,
-    and of a long command's output (a build, an install) its command line, then at most
-    every few seconds how long it has run and its latest line."""
+    and of a long command's output (a build, an install) its command line, whole (a user
+    may copy it to run it again), then at most every few seconds how long it has run and
+    its latest line. Every command a text suggests is spelled by `calling`."""
 
     EVERY = 5.0
 
-    def __init__(self) -> None:
+    def __init__(self, calling: Calling | None = None) -> None:
         import time
 
         self._clock = time.monotonic
         self._started = self._shown = self._clock()
+        self._spell = (calling or Calling()).spell
 
     def __call__(self, event: Event) -> None:
         from reconciler.core.planning.render import render
         from reconciler.workflow.events import Note, Output, Planned, Progress
 
         if isinstance(event, Note):
-            print(f"note: {event.text}", file=sys.stderr)
+            print(self._spell(f"note: {event.text}"), file=sys.stderr)
         elif isinstance(event, Progress):
-            print(event.text, flush=True)
+            print(self._spell(event.text), flush=True)
         elif isinstance(event, Planned):
-            print(render(event.plan))
+            print(self._spell(render(event.plan)))
         elif isinstance(event, Output):
             self._output(event.line)
 
@@ -143,17 +186,17 @@ class Terminal:
         now_ = self._clock()
         if line.startswith("$ "):  # a new command: its clock starts
             self._started = self._shown = now_
-            print(f"      {fit(line, 100)}", flush=True)
+            print(f"      {printable(line)}", flush=True)
         elif now_ - self._shown >= self.EVERY:
             self._shown = now_
             print(f"      … {now_ - self._started:.0f} s: {fit(line, 80)}", flush=True)
 
 
 def fit(line: str, width: int) -> str:
-    """`line` in at most `width` printable characters, cut in the middle: the end of a
-    command line (the path, the package) is the part that says most."""
+    """`line` in at most `width` printable characters, cut at its end with "…": what is
+    shown reads as it was printed (a cut in the middle joined two halves of a command
+    into one that does not exist)."""
     text = printable(line)
     if len(text) <= width:
         return text
-    head = width * 2 // 5
-    return f"{text[:head]} … {text[len(text) - (width - head - 3):]}"
+    return f"{text[:width - 1]}…"

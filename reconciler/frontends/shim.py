@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.base.errors import LpamError
+from reconciler.base.text import counted
 
 if TYPE_CHECKING:
     from reconciler.base.layout import Layout
@@ -222,7 +223,7 @@ def _act(machine: Machine, flag: str, value: str | None) -> None:
         print(f"Repository {value} removed.")
     elif flag == "p":
         updated = editing.update(machine, options=_options(), report=_report())
-        print(f"Updated: {updated.steps} steps; {updated.app}.")
+        print(f"Updated: {counted(updated.steps, 'step')}; {updated.app}.")
     elif flag in "sk":
         _operate(machine, flag)
 
@@ -271,7 +272,7 @@ def _fail(message: str) -> None:
 
 def one_line(exc: LpamError) -> str:
     """The error as the CLI renders it (with its file:line:col), on one line."""
-    lines = exc.render().removeprefix("error: ").splitlines()
+    lines = exc.render().removeprefix(f"{exc.word}: ").splitlines()
     text = lines[0]
     hint = next((line.strip() for line in lines[1:] if line.strip().startswith("hint:")), None)
     return f"{text} ({hint})" if hint else text
@@ -299,7 +300,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_OK
 
     return exit_code(
-        body, bug=lambda: debug_log(_layout()), failed=lambda exc: _error(one_line(exc)),
+        body, bug=lambda: debug_log(_layout()),
+        failed=lambda exc: f"{PROG}: {exc.word}: {one_line(exc)}",
         interrupted=lambda: _error("interrupted: lpam recorded where it stood; `lpam apply` "
                                    "goes on from there"),
         internal=lambda log: _error(f"internal error; details in {log}"))

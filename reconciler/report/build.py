@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from reconciler.base.unit import unit_name
+from reconciler.core.planning.holds import release_command
 from reconciler.core.planning.model import app_folder
 from schemas.report import (
     CatalogRow,
@@ -210,13 +211,14 @@ def service_of(app: CatalogApp) -> str:
 def holds(record: StateRecord) -> list[HoldView]:
     """Every hold on this car, what it holds against and how it ends."""
     against = record.desired.source if record.desired is not None else "the desired state"
+    release = release_command(record)
     found = []
     if record.hold is not None:
         found.append(HoldView(
             kind="rollback", what=f"`lpam rollback` returned to generation "
             f"{record.hold.name}, and plans propose nothing else", against=against,
             ends=f"when the desired state last applied ({against}) changes, or with "
-            "`lpam apply --release`"))
+            f"`{release}`"))
     start = "`lpam start`" if len(record.apps) <= 1 else "`lpam start {name}`"
     for app in record.apps:  # an operator's stop holds one app
         if app.held:
@@ -224,7 +226,7 @@ def holds(record: StateRecord) -> list[HoldView]:
                 kind="operator stop", what=f"{app.name} was stopped by `lpam stop` and "
                 "stays stopped", against=against,
                 ends=f"with {start.format(name=app.name)}, when the desired state last "
-                f"applied ({against}) changes, or with `lpam apply --release`"))
+                f"applied ({against}) changes, or with `{release}`"))
     return found
 
 

@@ -221,8 +221,8 @@ def standing(machine: Machine, apps: Sequence[AppRecord] | None = None) -> str:
     from reconciler.engine.records.state import read_record
 
     current = read_record(machine.layout).apps if apps is None else apps
-    if not current:
-        return "no app"
+    if not current:  # a sentence of its own: "No app enabled; no app." said nothing
+        return "no app is installed"
     return "; ".join(_standing(machine, app) for app in current)
 
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from reconciler.base.errors import ConfigError, LpamError
+from reconciler.base.text import counted
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
@@ -56,7 +57,8 @@ def create(machine: Machine, url: str, branch: str, out: Path, *, report: Report
                 "repositories": [e.__dict__ for e in entries]}
     bundle.write(machine.layout, out, branch=branch, tip=tip, manifest=manifest,
                  pins=[(SOURCE_KEY, tip), *((e.key, e.commit) for e in entries)])
-    report(Progress(f"bundle of {url} {branch} at {tip[:12]}: {len(entries)} repositories"))
+    pinned = counted(len(entries), "repository", "repositories")
+    report(Progress(f"bundle of {url} {branch} at {tip[:12]}: {pinned}"))
     return len(entries)
 
 
@@ -84,7 +86,7 @@ def _pinned(machine: Machine, url: str, tip: str, report: Report) -> list[Entry]
                 raise LpamError(f"{label}: {repo.key} could not be resolved")
             found[(repo.key, repo.commit)] = Entry(repo.key, repo.url, repo.commit,
                                                    _ref_name(machine, repo.key, repo.ref))
-        report(Progress(f"{name}: {len(repos)} repositories"))
+        report(Progress(f"{name}: {counted(len(repos), 'repository', 'repositories')}"))
     return sorted(found.values(), key=lambda e: (e.key, e.commit))
 
 

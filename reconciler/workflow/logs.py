@@ -118,16 +118,21 @@ def new_output(machine: Machine, shown: Shown, *,
         sleep(1.0)
         for name, unit in units.items():
             lines = machine.services.logs(unit, FOLLOW_LINES)
-            fresh = lines[overlap(previous.get(name, []), lines):]
+            fresh = lines[seen_up_to(previous.get(name, []), lines):]
             yield from (f"{name} | {line}" for line in fresh) if name else fresh
             previous[name] = lines
 
 
-def overlap(before: list[str], after: list[str]) -> int:
-    """How many leading lines of `after` were the end of `before` (what -f already printed)."""
-    for size in range(min(len(before), len(after)), 0, -1):
-        if before[-size:] == after[:size]:
-            return size
+def seen_up_to(before: list[str], after: list[str]) -> int:
+    """Where the lines of `after` that -f has not printed yet begin: just past the latest
+    place where `after` holds the end of `before`. `before` may be a shorter window than
+    `after` (`-n N` showed N lines; following asks for FOLLOW_LINES), so the N lines are
+    looked for inside `after`, not only at its start: else the whole window is printed
+    again. None of `before` in `after` (the log was rotated): every line is new."""
+    for end in range(len(after), 0, -1):
+        size = min(len(before), end)
+        if size and after[end - size:end] == before[-size:]:
+            return end
     return 0
 
 

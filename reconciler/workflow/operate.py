@@ -20,7 +20,7 @@ from pathlib import Path
 from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS
-from reconciler.core.planning.holds import fingerprint
+from reconciler.core.planning.holds import fingerprint, release_command
 from reconciler.core.planning.model import GenerationKey
 from reconciler.core.planning.modes import operator_plan, rollback_plan
 from reconciler.engine.execution.context import Context
@@ -204,5 +204,5 @@ def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | 
     said = ", ".join(f"{e.app} ({e.generation}, commit {e.commit[:12]})" for e in entries)
     return (f"Rolled back to {said}. "
             f"{'It holds' if len(entries) == 1 else 'They hold'}: plan and apply propose "
-            "nothing until the desired state changes (or `lpam apply --release`)."
+            f"nothing until the desired state changes (or `{release_command(ctx.record)}`)."
             + (f" {kept}" if kept else ""))

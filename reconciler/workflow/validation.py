@@ -16,12 +16,14 @@ and `apply PLAN` accept.
 from __future__ import annotations
 
 import json
+import shlex
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Union
 
 from reconciler.base.errors import ConfigError
 from reconciler.base.loading import Document, load, read_text
+from reconciler.base.text import counted
 from reconciler.core.documents import agent_from, catalog_from, desired_from, load_plan
 from schemas.catalog import CATALOG_FILE, Catalog
 from schemas.enums import StrEnum
@@ -195,7 +197,8 @@ def _read(doc: Document, kind: Kind) -> str:
     written = str(doc.data.get("version")).strip()
     read_as = "" if written == str(state.version) else f", read as version {state.version}"
     return (f"OK: {path} is a desired state (version {written}){read_as}: "
-            f"{len(state.repositories)} repositories, app{'s' if len(state.apps) > 1 else ''} "
+            f"{counted(len(state.repositories), 'repository', 'repositories')}, "
+            f"app{'s' if len(state.apps) > 1 else ''} "
             f"{names}")
 
 
@@ -218,8 +221,9 @@ def _plan(path: Path) -> str:
                           f"({', '.join(unknown) or 'offline'}); it cannot be applied",
                           "make an exact plan with `lpam plan --out FILE` (with network)")
     return (f"OK: {path} is a saved plan (format {plan.format_version}, lpam "
-            f"{plan.lpam_version}, {plan.created_at}): {len(plan.steps)} steps; `lpam apply "
-            f"{path}` runs it while the machine's state is still at serial {plan.serial}")
+            f"{plan.lpam_version}, {plan.created_at}): {counted(len(plan.steps), 'step')}; "
+            f"`lpam apply {shlex.quote(str(path))}` runs it while the machine's state is still "
+            f"at serial {plan.serial}")
 
 
 def _plan_error(path: Path, text: str, key: str, message: str, hint: str) -> ConfigError:
@@ -229,7 +233,7 @@ def _plan_error(path: Path, text: str, key: str, message: str, hint: str) -> Con
 
 def _names(catalog: Catalog) -> str:
     names = ", ".join(a.name for a in catalog.apps)
-    return f"{len(catalog.apps)} apps ({names})" if catalog.apps else "no apps"
+    return f"{counted(len(catalog.apps), 'app')} ({names})" if catalog.apps else "no apps"
 
 
 def _repository(folder: Path) -> str:

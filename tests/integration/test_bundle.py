@@ -20,8 +20,8 @@ def test_a_bundle_converges_a_car_with_no_network_at_all(
     out.parent.mkdir()
     made = laptop("bundle", "create", str(out), "--source", git_daemon.url("fleet.git"))
     assert made.returncode == 0, made.stdout + made.stderr
-    assert "desired-state.yaml: 1 repositories" in made.stdout  # both files were read
-    assert "vehicles/rav4-07.yaml: 1 repositories" in made.stdout
+    assert "desired-state.yaml: 1 repository\n" in made.stdout  # both files were read
+    assert "vehicles/rav4-07.yaml: 1 repository\n" in made.stdout
     git_daemon.stop()  # in the field: no server, no WiFi
     done = car("sync", "--bundle", str(out), "--network-timeout", "5")
     assert done.returncode == 0, done.stdout + done.stderr

@@ -152,7 +152,7 @@ def test_import_lpam_writes_a_desired_state_lpam_accepts(tmp_path: Path, era: st
     assert done.returncode == 0, done.stderr
     checked = lpam("validate", str(out))
     assert checked.returncode == 0, checked.stderr
-    assert "1 repositories, app pandarecord" in checked.stdout
+    assert "1 repository, app pandarecord" in checked.stdout  # not "1 repositories"
     again = lpam("import-lpam", str(etc), "-o", str(out))
     assert again.returncode == 1 and "will not overwrite" in again.stderr
     missing = lpam("import-lpam", str(tmp_path / "nowhere"))

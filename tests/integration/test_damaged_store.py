@@ -82,8 +82,8 @@ def test_status_names_the_damaged_repository_and_answers_for_the_rest(
     table = two("status")
     assert table.returncode == 0 and table.stderr == "", table.stderr
     rows = table.stdout.splitlines()
-    assert any(r.startswith("apps ") and "(damaged in the store: the next `lpam apply` "
-               "fetches it anew)" in r for r in rows), table.stdout
+    assert any(r.startswith("apps ") and f"(damaged in the store: the next `lpam --root "
+               f"{two.root} apply` fetches it anew)" in r for r in rows), table.stdout
     assert any(r.startswith("tools ") and "gamma" in r and "the gamma app" in r for r in rows)
     assert any(r.startswith("apps ") and " alpha " in r and " running" in r for r in rows)
     [note] = [r for r in rows if r.startswith("Repository apps: its copy in the store is "
@@ -109,7 +109,8 @@ def test_plan_refuses_a_damaged_copy_and_says_apply_fetches_it_anew(
         error, hint = done.stderr.splitlines()
         assert error.startswith("error: repository apps: its copy in the store is damaged: ")
         assert error.endswith(f"({store / 'apps'})")
-        assert hint == ("  hint: the store is a cache: the next `lpam apply` moves the "
+        assert hint == (f"  hint: the store is a cache: the next `lpam --root {two.root} "
+                        "apply` moves the "
                         f"damaged copy aside and fetches it anew from "
                         f"{git_daemon.url('apps.git')}; nothing was changed")
     assert snapshot(store) == before
@@ -159,7 +160,7 @@ def test_without_network_apply_changes_nothing_and_says_so(
     assert error.startswith("error: repository apps: its copy in the store is damaged: ")
     assert f"; fetching it anew failed: cannot fetch {git_daemon.url('apps.git')}" in error
     assert hint == ("  hint: nothing was changed and the running app is untouched; the next "
-                    "`lpam apply` with network fetches it anew")
+                    f"`lpam --root {two.root} apply` with network fetches it anew")
     assert snapshot(store) == before
     assert two.events() == ["alpha:install:", "alpha:start:"]
     assert two.status()["app"]["running"]

@@ -55,6 +55,6 @@ def test_a_pinned_commit_not_in_the_store_says_it_needs_the_network(
     assert line == (f"error: cannot fetch {refusing}: the server refused the connection "
                     f"(nothing listens at {refusing.split('/')[2]})"), plan.stderr
     assert "[Errno" not in plan.stderr and "?" not in plan.stderr
-    assert rest and "lpam plan --offline" in rest[-1]
+    assert rest and f"`lpam --root {lpam.root} plan --offline`" in rest[-1]  # as it runs
     assert "-/+ repository.apps: URL changed" in offline.stdout
     assert "a fetch over the network" in offline.stdout, offline.stdout

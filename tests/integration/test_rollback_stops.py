@@ -27,9 +27,10 @@ def test_a_rollback_starts_no_app_an_operator_stopped_and_says_so(
 
     back = lpam("rollback", "--yes")
     assert back.returncode == 0, back.stderr
+    at = f"lpam --root {lpam.root}"  # each suggested command, as it runs (issue 30, 13)
     said = back.stdout
-    kept = ("controller, recorder, tracker were stopped by an operator (`lpam stop`) and "
-            "stay stopped after the rollback: `lpam start` (or `lpam start APP`) starts "
+    kept = (f"controller, recorder, tracker were stopped by an operator (`{at} stop`) and "
+            f"stay stopped after the rollback: `{at} start` (or `{at} start APP`) starts "
             "them.")
     # named before the question, and in the result
     assert said.index(kept) < said.index("Roll back to"), said
@@ -60,8 +61,9 @@ def test_a_rollback_starts_no_stopped_app_it_installs_anew(
     back = lpam("rollback", "--yes")
     assert back.returncode == 0, back.stderr
     assert "install:recorder@" in back.stdout and "start:recorder@" not in back.stdout
-    assert "recorder was stopped by an operator (`lpam stop`) and stays stopped after the " \
-        "rollback: `lpam start recorder` starts it." in back.stdout, back.stdout
+    at = f"lpam --root {lpam.root}"  # each suggested command, as it runs (issue 30, 13)
+    assert f"recorder was stopped by an operator (`{at} stop`) and stays stopped after " \
+        f"the rollback: `{at} start recorder` starts it." in back.stdout, back.stdout
     recorder = installed(lpam)["recorder"]
     assert (recorder["running"], recorder["held"]) == (False, True)
     assert "recorder was stopped by `lpam stop`" in lpam("status").stdout
@@ -83,13 +85,14 @@ def test_status_names_the_hold_of_a_rollback_without_a_file(
     assert lpam("apply", "--yes").returncode == 0
     back = lpam("rollback", "--yes")
     assert back.returncode == 0, back.stderr
+    at = f"lpam --root {lpam.root}"  # each suggested command, as it runs (issue 30, 13)
     shown = lpam("status").stdout
-    assert "Held: `lpam rollback` returned to generation" in shown, shown
+    assert f"Held: `{at} rollback` returned to generation" in shown, shown
     assert "it ends when the desired state last applied" in shown, shown
     row = next(line for line in shown.splitlines() if line.startswith("apps"))
     assert "held by `lpam rollback`" in row, row
     [app] = lpam.status()["installed"]
     assert app["rollback_hold"] and "held by `lpam rollback`" in app["said"]
     plan = lpam("plan").stdout
-    assert "No changes because of the holds in force: `lpam rollback` holds generation" \
+    assert f"No changes because of the holds in force: `{at} rollback` holds generation" \
         in plan and "matches the desired state" not in plan, plan

@@ -103,7 +103,9 @@ def test_rollback_brings_the_previous_set_back_and_history_shows_sets(lpam: Lpam
 
     shown = lpam("history")
     assert shown.returncode == 0, shown.stderr
-    blocks = [b.splitlines() for b in shown.stdout.strip().split("\n\n")]
+    header, rows = shown.stdout.strip().split("\n", 1)
+    assert header.split()[:3] == ["Now", "Time", "App"]  # a table with its header
+    blocks = [b.splitlines() for b in rows.split("\n\n")]
     assert [sorted(line.lstrip("* ").split()[1] for line in b) for b in blocks] == [
         ["ctl-a", "recorder", "tracker"], ["ctl-b", "recorder"]]
     assert all(line.startswith("*") for line in blocks[1])  # the set installed now

@@ -231,7 +231,7 @@ def test_u_s_k_and_t(shim: Shim) -> None:
     assert shim.ok("-t") == "ticker: unit lpam-app-ticker inactive (stopped)\n"
     shim.ok("-s")
     running_pid(shim)
-    shim.ok("-u")
+    assert shim.ok("-u").splitlines()[-1] == "No app enabled; no app is installed."
     assert shim.ok("-c") == "None\n"
     assert shim.ok("-t") == "inactive (none installed)\n"
     assert "\napp: null\n" in shim.desired.read_text()  # written as the README writes it

@@ -119,7 +119,8 @@ def test_a_rollback_holds_against_the_file_last_applied_and_status_says_how_it_e
     assert plan.returncode == 0 and "held by `lpam rollback`" in plan.stdout, plan.stdout
     holds = lpam.status()["holds"]
     assert [h["kind"] for h in holds] == ["rollback"] and str(mine) in holds[0]["ends"]
-    assert "Held: `lpam rollback` returned to generation" in lpam("status").stdout
+    assert (f"Held: `lpam --root {lpam.root} rollback` returned to generation"
+            in lpam("status").stdout)  # spelled for the root it acts on (issue 30, 13)
     released = lpam("apply", "-f", str(mine), "--yes", "--release")
     assert released.returncode == 0 and "Released the hold" in released.stdout
     assert lpam.status()["holds"] == []

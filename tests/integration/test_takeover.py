@@ -84,12 +84,14 @@ def test_status_says_what_plan_does_with_the_app_lpam_installed(
     commit = apps_repo(repo)
     lpam_vehicle(lpam, repo, commit)
     imported(lpam, git_daemon.url("apps.git"))
+    at = f"lpam --root {lpam.root}"  # each suggested command, as it runs (issue 30, 13)
     before = lpam("status").stdout
-    assert "`lpam apply` stops and uninstalls it before" not in before, before
-    assert "known once `lpam plan` has fetched the desired commits" in before, before
+    assert f"`{at} apply` stops and uninstalls it before" not in before, before
+    assert "stops and uninstalls it before installing" not in before, before
+    assert f"known once `{at} plan` has fetched the desired commits" in before, before
     assert "adopted in place" in lpam("plan").stdout
     shown = lpam("status").stdout
-    assert "Installed by LPAM: alpha, the desired app alpha as it is: `lpam apply` adopts " \
+    assert f"Installed by LPAM: alpha, the desired app alpha as it is: `{at} apply` adopts " \
         "it in place (no script runs, it is not restarted)." in shown, shown
     assert "stops and uninstalls" not in shown, shown
     [stray] = lpam.status()["strays"]
@@ -110,7 +112,8 @@ def test_status_says_an_app_lpam_installed_differently_is_stopped_and_uninstalle
     imported(lpam, git_daemon.url("apps.git"))
     assert "adopted" not in lpam("plan").stdout
     shown = lpam("status").stdout
-    assert "`lpam apply` stops and uninstalls it before installing any app." in shown, shown
+    at = f"lpam --root {lpam.root}"  # each suggested command, as it runs (issue 30, 13)
+    assert f"`{at} apply` stops and uninstalls it before installing any app." in shown, shown
     assert lpam.status()["strays"][0]["fate"] == "replaced"
 
 

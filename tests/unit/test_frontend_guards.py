@@ -32,8 +32,8 @@ ENDINGS: dict[str, tuple[BaseException, int, str, str]] = {
     "document": (ConfigError("bad key", path=Path("/x/d.yaml"), line=3, column=4, hint="fix"),
                  1, "error: /x/d.yaml:3:4: bad key\n  hint: fix\n",
                  f"{SHIM}/x/d.yaml:3:4: bad key (hint: fix)\n"),
-    "deferred": (Deferred("gates closed"), 75, "error: gates closed\n",
-                 f"{SHIM}gates closed\n"),
+    "deferred": (Deferred("gates closed"), 75, "deferred: gates closed\n",  # not a failure
+                 "libpanda-app-manager: deferred: gates closed\n"),
     "reader-left": (BrokenPipeError(), 0, "", ""),
     "ctrl-c": (KeyboardInterrupt(), 130, "interrupted: nothing was changed\n",
                f"{SHIM}{RESUME_SHIM}\n"),
@@ -121,3 +121,24 @@ def test_an_interrupt_passes_through_a_guard_that_names_no_answer_for_it() -> No
     with pytest.raises(KeyboardInterrupt):
         guarded(raising(KeyboardInterrupt()), bug=lambda: "nowhere",
                 internal=lambda exc, where: 1)
+
+
+def test_a_long_commands_progress_shows_it_whole_and_cuts_its_output_at_the_end(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Progress lines cut a command in the middle ("pip install a b … y z"), which reads
+    as a command that does not exist (issue 30, item 14)."""
+    from reconciler.frontends.console import Terminal
+    from reconciler.workflow.events import Output
+
+    command = "$ pip install " + " ".join(f"package-{n}" for n in range(30))
+    said = "Collecting " + " ".join(f"dependency-{n}" for n in range(30))
+    terminal = Terminal()
+    clock = iter([0.0, 10.0])
+    terminal._clock = lambda: next(clock)
+    terminal(Output(command))
+    terminal(Output(said))
+    shown, output = capsys.readouterr().out.splitlines()
+    assert shown == f"      {command}"
+    assert output.startswith("      … 10 s: Collecting dependency-0 dependency-1")
+    assert output.endswith("…") and len(output) < len(said)

@@ -49,3 +49,25 @@ def test_nothing_held_still_matches() -> None:
     plan = make_plan(Targets((repo(),), (app(),)), observed(app_rec=installed()), now=NOW,
                      lpam_version="t")
     assert plan.summary == f"No changes. {MATCHES}."
+
+
+def test_a_hold_on_a_file_is_released_by_applying_that_file() -> None:
+    """`lpam apply --release` alone applies the default file — another desired state, or
+    none: a hold against a file names that file in its way out, a hold against a
+    revision of the followed repository does not (issue 30, item 13)."""
+    from reconciler.core.planning.holds import release_command
+    from schemas.record import DesiredRef
+
+    seen = stopped()
+    entry = HistoryEntry(time="2026-11-22T00:00:00+00:00", app="x", generation="g0",
+                         repository="o/apps", commit="a" * 40, path="x", tree="1" * 40,
+                         result="applied")
+    held = seen.record.model_copy(update={
+        "hold": Hold(desired="f" * 64, targets=[entry]),
+        "desired": DesiredRef(fingerprint="f" * 64, source="/home/me/my state.yaml")})
+    plan = make_plan(Targets(()), Observed(record=held, repositories={}), now=NOW,
+                     lpam_version="t", hold="held by `lpam rollback`")
+    assert "`lpam apply -f '/home/me/my state.yaml' --release` ends it" in str(plan.summary)
+    fleet = DesiredRef(fingerprint="f" * 64, source="fleet@0123abcd/vehicles/rav4.yaml")
+    assert release_command(held.model_copy(update={"desired": fleet})) == \
+        "lpam apply --release"

@@ -26,3 +26,12 @@ def test_shorten_cuts_the_middle_and_says_how_much() -> None:
 def test_an_error_renders_its_details_terminal_safe() -> None:
     rendered = LpamError("failed", details=["out\x1b]0;title\x07put"]).render()
     assert "\x1b" not in rendered and "\x07" not in rendered and "out?]0;title?put" in rendered
+
+
+def test_a_count_of_one_is_singular() -> None:
+    """'1 apps', '1 repositories' (issue 30, item 14)."""
+    from reconciler.base.text import counted
+
+    assert [counted(n, "app") for n in (0, 1, 2)] == ["0 apps", "1 app", "2 apps"]
+    assert counted(1, "repository", "repositories") == "1 repository"
+    assert counted(3, "repository", "repositories") == "3 repositories"

@@ -64,7 +64,7 @@ def test_the_readme_agent_yaml_with_a_vehicle_id_is_agent_settings(tmp_path: Pat
      "is a desired state"),
     ("version: 0.0\nrepositories: {jmscslgroup/libpanda-default-apps: {branch: main}}\n"
      "current: pandarecord\n", "is a desired state (version 0.0), read as version 2"),
-    ("apps:\n  - name: logger\n", "is an app catalog with 1 apps (logger)"),
+    ("apps:\n  - name: logger\n", "is an app catalog with 1 app (logger)"),
     ("version: 1\nsource: {url: 'https://h/fleet'}\nvehicle_file: /etc/libpanda.d/vin\n",
      "as the vehicle named in /etc/libpanda.d/vin"),
     ("version: 1\nsource: {url: 'https://h/fleet'}\n", "as this machine's hostname"),
@@ -76,7 +76,7 @@ def test_the_kind_is_read_from_the_document(tmp_path: Path, text: str, said: str
 def test_a_saved_plan_is_recognised_and_read_as_apply_reads_it(tmp_path: Path) -> None:
     done = validate(saved_plan(tmp_path))
     assert "is a saved plan (format 2, lpam 0.1.0" in done
-    assert "1 steps" in done and "serial 3" in done
+    assert "1 step;" in done and "serial 3" in done
 
 
 def test_an_app_repository_folder(tmp_path: Path) -> None:

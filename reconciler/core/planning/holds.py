@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shlex
+from pathlib import PurePosixPath
 
 from schemas.desired import DesiredState
 from schemas.record import DesiredRef, StateRecord
@@ -39,13 +41,25 @@ def desired_ref(desired: DesiredState, source: str) -> DesiredRef:
     return DesiredRef(fingerprint=fingerprint(desired), source=source)
 
 
+def release_command(record: StateRecord) -> str:
+    """The command that ends the holds: an apply, with `--release`, of the desired state
+    they hold against. One applied from a file names that file (recorded absolute): alone,
+    `lpam apply --release` applies the default file — another desired state, or none. A
+    revision of the followed repository (`<repository>@<revision>/<file>`) is what
+    `--release` alone applies."""
+    source = record.desired.source if record.desired is not None else None
+    if source is not None and PurePosixPath(source).is_absolute():
+        return f"lpam apply -f {shlex.quote(source)} --release"
+    return "lpam apply --release"
+
+
 def hold_reason(record: StateRecord, desired: DesiredState) -> str | None:
     """Why a rollback holds the car, while the desired state is unchanged (None: no hold)."""
     hold = record.hold
     if hold is None or hold.desired != fingerprint(desired):
         return None
     return (f"held by `lpam rollback` at generation {hold.name}: nothing is proposed "
-            "until the desired state changes (`lpam apply --release` ends the hold)")
+            f"until the desired state changes (`{release_command(record)}` ends the hold)")
 
 
 def released(record: StateRecord, desired: DesiredState) -> tuple[StateRecord, list[str]]:

@@ -13,6 +13,7 @@ from reconciler.base.errors import PlanError, StalePlanError
 from reconciler.core.planning.decision import Held
 from reconciler.core.planning.diff import apps_planned, diff
 from reconciler.core.planning.graph import steps_for
+from reconciler.core.planning.holds import release_command
 from reconciler.core.planning.model import UNKNOWN, Observed, Targets
 from schemas.generation import AppGeneration, StrayGeneration
 from schemas.plan import Action, BuildStep, Change, CheckoutStep, Plan, Step, fingerprint
@@ -50,7 +51,7 @@ def held_summary(record: StateRecord, *, rollback: bool, stopped: list[str]) -> 
     holds = []
     if rollback and record.hold is not None:
         holds.append(f"`lpam rollback` holds generation {record.hold.name} (a change of the "
-                     "desired state or `lpam apply --release` ends it)")
+                     f"desired state or `{release_command(record)}` ends it)")
     if stopped:
         one = len(stopped) == 1
         start = f"`lpam start {stopped[0]}` starts it" if one else \

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from reconciler.base.text import counted
 from reconciler.core.vehicle.motion import Motion
 from schemas.vehicle import GatesSpec
 
@@ -82,5 +83,5 @@ def locks(gates: GatesSpec, busy: Sequence[str]) -> list[GateState]:
     if not gates.locks:
         return []
     if not busy:
-        return [GateState("lock", True, f"{len(gates.locks)} lock(s) free")]
+        return [GateState("lock", True, f"{counted(len(gates.locks), 'lock')} free")]
     return [GateState("lock", False, text) for text in busy]

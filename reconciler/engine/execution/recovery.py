@@ -142,13 +142,13 @@ def begun(ctx: Context) -> StateRecord:
 def interrupted(ctx: Context) -> None:
     """Ctrl-C or SIGTERM: say so in the record (best effort: it is how the apply ended)."""
     last = LastApply(time=ctx.clock().isoformat(timespec="seconds"), result="interrupted",
-                     reason="interrupted (Ctrl-C or SIGTERM); where it stood is recorded",
+                     reason="by Ctrl-C or SIGTERM; where it stood is recorded",
                      command=ctx.command)
     with contextlib.suppress(LpamError):
         ctx.save(ctx.record.model_copy(update={"last_apply": last}))
 
 
-DEFERRED_PREFIX = "the cutover is deferred: "  # how the gates word a deferral
+DEFERRED_PREFIX = "the update gates are closed: "  # how the gates word a deferral
 
 
 def deferred(ctx: Context, exc: Deferred, *, desired: DesiredRef | None) -> None:

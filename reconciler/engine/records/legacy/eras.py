@@ -17,6 +17,7 @@ from migrations import desired_state_v0_to_v1, upgrade
 from migrations.step import MigrationError
 from reconciler.base.errors import ConfigError
 from reconciler.base.loading import Document, load
+from reconciler.base.text import counted
 from reconciler.engine.records.legacy.files import (
     APP_FILE,
     CSV_MANIFEST,
@@ -88,7 +89,7 @@ def parse_manifest_csv(text: str, path: Path) -> tuple[list[dict[str, str]], lis
         extra = [(column, value) for column, value in fields[2:] if value]
         if extra:
             raise ConfigError(
-                f"expected `owner/repo, branch`, found {len(fields)} fields",
+                f"expected `owner/repo, branch`, found {counted(len(fields), 'field')}",
                 path=path, line=number, column=extra[0][0],
                 hint="one repository a line: owner/repo, branch",
             )
