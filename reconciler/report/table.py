@@ -117,14 +117,16 @@ def _cutover(report: StatusReport) -> list[str]:
         return [printable(f"Cutover under way since {cutover.began}: it returns to {back} "
                           "if the new app fails.")]
     ended = {"cut off": "cut off", "interrupted": "interrupted"}.get(state, "left unfinished")
+    last = report.last_apply
+    again = f"`{last.command}`" if last is not None and last.command else "the next `lpam apply`"
     if rollback is not None:
         failed = ", ".join(a.name for a in rollback.failed) or "the new app"
         return [printable(
             f"Rollback {ended}: {failed} failed ({rollback.reason}) at {rollback.time}, "
-            f"and the rollback to {back} did not finish: the next `lpam apply` finishes it.")]
+            f"and the rollback to {back} did not finish: {again} finishes it.")]
     return [printable(
-        f"Apply {ended} mid-cutover (began {cutover.began}): the next `lpam apply` goes on "
-        f"from here, and returns to {back} if the new app fails.")]
+        f"Apply {ended} mid-cutover (began {cutover.began}): {again} goes on from here, "
+        f"and returns to {back} if the new app fails.")]
 
 
 def _agent(report: StatusReport) -> list[str]:

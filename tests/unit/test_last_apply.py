@@ -103,6 +103,8 @@ def test_a_dead_apply_mid_cutover_is_cut_off_in_both_lines() -> None:
     assert "Last apply: cut off (began" in text and f"`{COMMAND}`" in text
     assert "Apply cut off mid-cutover" in text and "in progress" not in text
     assert body["last_apply"]["state"] == "cut off"
+    cutover = next(line for line in text.splitlines() if "mid-cutover" in line)
+    assert f"`{COMMAND}` goes on from here" in cutover, cutover  # the file it worked toward
 
 
 def test_a_deferred_apply_is_shown_as_deferred_never_as_killed() -> None:
