@@ -46,7 +46,7 @@ def both_in_progress_and_cut_off(report: dict[str, Any], table: str) -> list[str
     return found
 
 
-def last_apply_as_it_ended(report: dict[str, Any], command: str,
+def last_apply_as_it_ended(report: dict[str, Any], table: str, command: str,
                            code: int | str) -> list[str]:
     """(a), after an apply whose end the user saw: the report's word for the last apply is
     how it ended — deferred by the gates (75) is not killed nor cut off; interrupted
@@ -54,12 +54,12 @@ def last_apply_as_it_ended(report: dict[str, Any], command: str,
     if command != "apply":
         return []
     shown = (report.get("last_apply") or {}).get("shown") or ""
+    cut = [line for line in table.splitlines() if CUT_OFF.search(line)]
     found = []
-    if code == 75 and (CUT_OFF.search(shown) or "killed" in shown):
-        found.append(f"(a) the apply was deferred (exit 75); the report says {shown!r}")
-    if code in (130, 143) and CUT_OFF.search(shown):
-        found.append(f"(a) the apply was interrupted (exit {code}); the report says "
-                     f"{shown!r}")
+    if code == 75 and (cut or "killed" in shown):
+        found.append(f"(a) the apply was deferred (exit 75); the table says {cut}")
+    if code in (130, 143) and cut:
+        found.append(f"(a) the apply was interrupted (exit {code}); the table says {cut}")
     if isinstance(code, int) and code not in (-9, -2, -15) and IN_PROGRESS.search(shown):
         found.append(f"(a) the apply ended (exit {code}); the report says {shown!r}")
     return found

@@ -337,7 +337,8 @@ class World:
         texts = [("status", table), ("status --json", json.dumps(report))]
         if said is not None:
             texts += [(shlex.join(said.argv[3:]), said.out + said.err)]
-            self.note(when, last_apply_as_it_ended(report, applied(said), said.code))
+            self.note(when, last_apply_as_it_ended(report, table, applied(said),
+                                                           said.code))
         if self.wished is not None:  # else nothing was ever to be applied: no plan
             steps, text = self.plan(when)
             self.note(when, plan_agrees(report, table, steps, text))
@@ -585,7 +586,8 @@ class RealCar:
         texts = [("status", table), ("status --json", json.dumps(report))]
         if said is not None:
             texts += [(shlex.join(said.argv[3:]), said.out + said.err)]
-            self.note(when, last_apply_as_it_ended(report, applied(said), said.code))
+            self.note(when, last_apply_as_it_ended(report, table, applied(said),
+                                                           said.code))
         if self.wished is not None:
             plan = self.run("plan", "--json", "-f", str(self.wished))
             steps: list[str] = []
