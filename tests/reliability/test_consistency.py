@@ -693,7 +693,8 @@ def real_round(car: RealCar, url: str, rng: random.Random, number: int) -> None:
     out, err = proc.communicate(timeout=180)
     said = Said(["lpam", "--root", str(car.root), *args], proc.returncode, out, err)
     car.history.append(f"{shlex.join(args)} → {proc.returncode} [{fault or '-'}]")
-    if args[0] == "apply" and car.lpam.status().get("last_apply") == before:
+    if args[0] == "apply" and proc.returncode in (-9, 130, 143) and \
+            car.lpam.status().get("last_apply") == before:
         # Killed before it began: the record never heard of this desired state, so the
         # report cannot speak of it; the operator's edit is undone, as if never made.
         for path, text in kept.items():
