@@ -727,3 +727,47 @@ def test_what_the_real_lpam_says_agrees_with_itself_and_with_the_car(
         real_round(car, car_url, rng, number)
     print(f"\n{ROUNDS} rounds, {len(car.violations)} violations")
     assert car.violations == [], "\n".join(car.violations)
+
+
+# --- the checks themselves ------------------------------------------------------------------
+
+
+def test_a_car_that_agrees_with_itself_passes_every_check(tmp_path: Path) -> None:
+    """The property can pass: an app lpam runs as a unit, applied, planned again, its
+    parameter changed — nothing contradicts anything (the checks are not blind failures)."""
+    world = run_sequence(tmp_path, [("apply", (("z", 0),), False, Mishap()),
+                                    ("apply", (("z", 1),), False, Mishap())])
+    assert world.violations == []
+    assert [h.split(" [")[0] for h in world.history] == ["apply --yes → 0"] * 2
+
+
+def test_the_checks_notice_each_kind_of_contradiction() -> None:
+    """Each check can fail, on reports made by hand."""
+    from tests.consistency import Hint as Suggested
+
+    report: dict[str, Any] = {
+        "last_apply": {"shown": "in progress since T (pid 1)", "result": "in progress"},
+        "cutover": {"began": "T"},
+        "installed": [{"name": "x", "running": True, "verified": False, "status": "running",
+                       "said": "running", "held": False},
+                      {"name": "z", "running": False, "verified": True, "status": "running",
+                       "said": "running", "held": True}],
+        "holds": []}
+    table = "Last apply: in progress since T\nApply cut off mid-cutover (began T)"
+    assert len(both_in_progress_and_cut_off(report, table)) == 2
+    found = plan_agrees(report, table, [], "No changes. The machine matches the desired "
+                        "state.")
+    assert len(found) == 3
+    assert "plan proposes no step, but the report says owed" in found[0]
+    assert "z is held (operator stop), and no hold names it" in found[1]
+    assert "under holds (['z']) the plan says 'No changes." in found[2]
+    assert running_is_true(report, table, {"x": None, "z": False}) == [
+        "(c) the table shows x running, and nowhere that this is unverified (its JSON "
+        "says verified: false)"]
+    assert [v[:30] for v in hint_as_printed(Suggested("lpam apply -f d.yaml", "status"),
+                                            Path("/r"))] == [
+        "(d) `lpam apply -f d.yaml` (st", "(d) `lpam apply -f d.yaml` (st"]
+    assert hint_as_printed(Suggested("lpam --root /r apply -f /d.yaml", "status"),
+                           Path("/r")) == []
+    assert [h.text for h in hints([("t", "stopped by `lpam stop`; `lpam start APP`; run "
+                                    "`lpam --root /r apply`")])] == ["lpam --root /r apply"]
