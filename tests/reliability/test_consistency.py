@@ -78,7 +78,7 @@ EXAMPLES = knob("LPAM_CONSISTENCY_EXAMPLES", 500, 5000)  # docs/reliability.md
 COLLECT = os.environ.get("LPAM_CONSISTENCY_COLLECT", "")
 """A file: each violation is appended there (one JSON line: what, and the commands that
 led to it) and the test passes — a survey of what is open, never the CI's setting."""
-URL, KEY = "git://h/apps", "apps"
+URL = "git://h/apps"
 C1, C2 = "a" * 40, "b" * 40
 APPS = ("x", "y", "z")  # x and y have scripts; z is scriptless (lpam writes its unit)
 SCRIPTS = ("install.sh", "uninstall.sh", "start.sh", "stop.sh")
@@ -233,6 +233,7 @@ class Said:
     code: int | str
     out: str
     err: str
+    began: bool = True  # it changed the record's last apply: the report speaks of it
 
 
 @dataclass
@@ -281,6 +282,7 @@ class World:
         self.vehicle.mishap = mishap or Mishap()
         self.vehicle.count = 0
         out, err = io.StringIO(), io.StringIO()
+        before = last_apply(self.root)
         here = os.getcwd()
         handler = signal.getsignal(signal.SIGTERM)
         os.chdir(cwd or self.elsewhere)
@@ -297,7 +299,8 @@ class World:
             signal.signal(signal.SIGTERM, handler)
             self.vehicle.mishap = Mishap()
             self.vehicle.fail.clear()
-        return Said(["lpam", *argv], code, out.getvalue(), err.getvalue())
+        return Said(["lpam", *argv], code, out.getvalue(), err.getvalue(),
+                    began=last_apply(self.root) != before)
 
     def look(self, when: str) -> tuple[dict[str, Any], str]:
         """`lpam status --json` and `lpam status`, checked by (a) and (c)."""
@@ -337,8 +340,9 @@ class World:
         texts = [("status", table), ("status --json", json.dumps(report))]
         if said is not None:
             texts += [(shlex.join(said.argv[3:]), said.out + said.err)]
+        if said is not None and said.began:
             self.note(when, last_apply_as_it_ended(report, table, applied(said),
-                                                           said.code))
+                                                   said.code))
         if self.wished is not None:  # else nothing was ever to be applied: no plan
             steps, text = self.plan(when)
             self.note(when, plan_agrees(report, table, steps, text))
@@ -376,6 +380,11 @@ class World:
                                                              if isinstance(said.code, int)
                                                              else 0, said.err))
         return said
+
+
+def last_apply(root: Path) -> object:
+    """The record's last apply now (read as lpam reads it)."""
+    return read_record(Layout(root)).last_apply
 
 
 def applied(said: Said) -> str:
@@ -586,8 +595,9 @@ class RealCar:
         texts = [("status", table), ("status --json", json.dumps(report))]
         if said is not None:
             texts += [(shlex.join(said.argv[3:]), said.out + said.err)]
+        if said is not None and said.began:
             self.note(when, last_apply_as_it_ended(report, table, applied(said),
-                                                           said.code))
+                                                   said.code))
         if self.wished is not None:
             plan = self.run("plan", "--json", "-f", str(self.wished))
             steps: list[str] = []
@@ -620,6 +630,7 @@ class RealCar:
             return None
         hint = usable[index % len(usable)]
         argv = hint.argv or []
+        before = last_apply(self.root)
         main, terminal = pty.openpty()
         try:
             proc = subprocess.Popen([sys.executable, "-m", "reconciler", *argv[1:]],
@@ -632,7 +643,7 @@ class RealCar:
             os.close(main)
             os.close(terminal)
         self.note(f"running `{hint.text}`", failed_as_printed(hint, proc.returncode, err))
-        return Said(argv, proc.returncode, out, err)
+        return Said(argv, proc.returncode, out, err, began=last_apply(self.root) != before)
 
 
 def real_round(car: RealCar, url: str, rng: random.Random, number: int) -> None:
@@ -646,7 +657,7 @@ def real_round(car: RealCar, url: str, rng: random.Random, number: int) -> None:
     apps = rng.choice(SETS)
     cwd = None
     previous = car.wished
-    before = car.lpam.status().get("last_apply")
+    before = last_apply(car.root)
     kept = {path: path.read_text() for path in
             (car.root / "etc/lpam/desired-state.yaml", car.typed / "wish.yaml")
             if path.exists()}
@@ -691,10 +702,10 @@ def real_round(car: RealCar, url: str, rng: random.Random, number: int) -> None:
     else:
         fault = None if fault != "look" else fault
     out, err = proc.communicate(timeout=180)
-    said = Said(["lpam", "--root", str(car.root), *args], proc.returncode, out, err)
+    said = Said(["lpam", "--root", str(car.root), *args], proc.returncode, out, err,
+                began=last_apply(car.root) != before)
     car.history.append(f"{shlex.join(args)} → {proc.returncode} [{fault or '-'}]")
-    if args[0] == "apply" and proc.returncode in (-9, 130, 143) and \
-            car.lpam.status().get("last_apply") == before:
+    if args[0] == "apply" and proc.returncode in (-9, 130, 143) and not said.began:
         # Killed before it began: the record never heard of this desired state, so the
         # report cannot speak of it; the operator's edit is undone, as if never made.
         for path, text in kept.items():
