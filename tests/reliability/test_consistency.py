@@ -376,6 +376,9 @@ class World:
         with mock.patch("sys.stdin.isatty", lambda: True), \
                 mock.patch("builtins.input", lambda question="": "yes"):  # a terminal
             said = self.lpam(*argv[1:], root=False, cwd=self.elsewhere)
+        wished = applies(argv, self.root)
+        if wished is not None:  # what the plan is compared with from now on
+            self.wished = wished
         self.note(f"running `{hint.text}`", failed_as_printed(hint, int(said.code)
                                                              if isinstance(said.code, int)
                                                              else 0, said.err))
@@ -385,6 +388,20 @@ class World:
 def last_apply(root: Path) -> object:
     """The record's last apply now (read as lpam reads it)."""
     return read_record(Layout(root)).last_apply
+
+
+def applies(argv: list[str], root: Path) -> Path | None:
+    """The desired state a suggested `lpam … apply [-f FILE]` applies (None: not an apply,
+    or a file that is not there from where it ran)."""
+    args = argv[1:]
+    while args[:1] == ["--root"]:
+        args = args[2:]
+    if args[:1] != ["apply"]:
+        return None
+    if "-f" in args[:-1]:
+        given = Path(args[args.index("-f") + 1])
+        return given if given.is_absolute() and given.exists() else None
+    return Layout(root).desired_state
 
 
 def applied(said: Said) -> str:
@@ -642,6 +659,9 @@ class RealCar:
         finally:
             os.close(main)
             os.close(terminal)
+        wished = applies(argv, self.root)
+        if wished is not None:  # what the plan is compared with from now on
+            self.wished = wished
         self.note(f"running `{hint.text}`", failed_as_printed(hint, proc.returncode, err))
         return Said(argv, proc.returncode, out, err, began=last_apply(self.root) != before)
 
