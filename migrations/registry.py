@@ -121,7 +121,7 @@ def upgrade(
             f"the {label} has no `version`", path=path, line=1, column=1,
             hint=_MISSING_HINTS[kind],
         )
-    version = _known_version(kind, doc["version"], path, where(("version",)))
+    version = _known_version(kind, doc["version"], path, lambda: where(("version",)))
     target = str(CURRENT[kind] if to is None else to)
     while version != target and version in STEPS[kind]:
         version, step = STEPS[kind][version]
@@ -137,12 +137,16 @@ def upgrade(
 
 
 def _known_version(kind: DocumentKind, value: Any, path: Path,
-                   at: tuple[int | None, int | None]) -> str:
+                   at: Callable[[], tuple[int | None, int | None]]) -> str:
     """The document's version as text, if this lpam reads it; a newer one is refused by
-    name (the operator must upgrade lpam, not lose fields silently)."""
+    name (the operator must upgrade lpam, not lose fields silently). `at` finds where the
+    version is written only when it is refused: finding it parses the document again for
+    positions, which costs more than all the rest (every `lpam status` reads the record)."""
     version = _normalise(value)
-    line, column = at
     current = str(CURRENT[kind])
+    if version is not None and (version == current or version in STEPS[kind]):
+        return version
+    line, column = at()
     if version is None:
         raise VersionError(
             f"`version` must be a number, not {value!r}",

@@ -11,6 +11,8 @@ LPAM_PROPERTY_EXAMPLES      150         3,000   tests/unit/test_convergence.py
 LPAM_CRASH_INSTANTS           6           240   tests/reliability/test_kills.py
 LPAM_FAULT_ROUNDS             6           200   tests/reliability/test_faults.py
 LPAM_SEVERAL_ROUNDS           4           120   tests/reliability/test_several_kills.py
+LPAM_CONSISTENCY_EXAMPLES   500         5,000   tests/reliability/test_consistency.py (in-process)
+LPAM_CONSISTENCY_ROUNDS       4            40   tests/reliability/test_consistency.py (real)
 """
 
 from __future__ import annotations
