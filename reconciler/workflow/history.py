@@ -22,7 +22,7 @@ class Made:
 
 def history(layout: Layout) -> list[Made]:
     """Every generation the record remembers making current, oldest first."""
-    from reconciler.engine.execution.recovery import same_set
+    from reconciler.core.planning.holds import same_set
     from reconciler.engine.records.state import read_record
     from schemas.record import history_sets
 

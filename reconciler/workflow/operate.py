@@ -166,7 +166,7 @@ def gates_passed(ctx: Context, progress: ProgressLine) -> Iterator[None]:
 def previous_good(ctx: Context) -> list[HistoryEntry]:
     """The last good set of apps (the history's sets: schemas/record.py `history_sets`)
     other than the one installed, every generation of it still on disk."""
-    from reconciler.engine.execution.recovery import same_set
+    from reconciler.core.planning.holds import same_set
     from schemas.record import history_sets
 
     present = generations.present(ctx.layout)

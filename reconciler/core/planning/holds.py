@@ -12,10 +12,11 @@ from __future__ import annotations
 import hashlib
 import json
 import shlex
+from collections.abc import Sequence
 from pathlib import PurePosixPath
 
 from schemas.desired import DesiredState
-from schemas.record import DesiredRef, StateRecord
+from schemas.record import AppRecord, DesiredRef, HistoryEntry, StateRecord
 
 
 def fingerprint(desired: DesiredState | None) -> str:
@@ -76,3 +77,13 @@ def released(record: StateRecord, desired: DesiredState) -> tuple[StateRecord, l
                          f"since it was last applied (from {applied.source})")
             record = record.with_app(app.name, app.model_copy(update={"held": False}))
     return record, notes
+
+
+def same_set(entries: Sequence[HistoryEntry], apps: Sequence[AppRecord]) -> bool:
+    """Whether a set of the history is what `apps` are: each app's name, generation and
+    parameters."""
+    def key(name: str, generation: str, params: dict[str, str]) -> tuple[str, ...]:
+        return (name, generation, *sorted(f"{k}={v}" for k, v in params.items()))
+
+    return {key(e.app, e.generation, e.params) for e in entries} == \
+        {key(a.name, a.generation, a.params) for a in apps}

@@ -29,6 +29,7 @@ from reconciler.base.errors import (
     StateWriteError,
     StepError,
 )
+from reconciler.core.planning.holds import same_set
 from reconciler.core.planning.lifecycle import resume_text
 from reconciler.core.planning.model import GenerationKey
 from reconciler.core.planning.modes import names, steps_back
@@ -348,16 +349,6 @@ def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
 
 
 KEEP_SETS = 20  # the sets of apps `lpam history` remembers
-
-
-def same_set(entries: Sequence[HistoryEntry], apps: Sequence[AppRecord]) -> bool:
-    """Whether a set of the history is what `apps` are: each app's name, generation and
-    parameters."""
-    def key(name: str, generation: str, params: dict[str, str]) -> tuple[str, ...]:
-        return (name, generation, *sorted(f"{k}={v}" for k, v in params.items()))
-
-    return {key(e.app, e.generation, e.params) for e in entries} == \
-        {key(a.name, a.generation, a.params) for a in apps}
 
 
 def where(phase: Phase, ctx: Context) -> str:
