@@ -678,8 +678,9 @@ def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
 
     services = services_for(layout, args.services)
     if args.json:
-        print(json.dumps(status.as_json(layout, state=services.state, manager=services.kind),
-                         indent=2))
+        calling: Calling = getattr(args, "calling", Calling())
+        print(json.dumps(calling.spell_values(
+            status.as_json(layout, state=services.state, manager=services.kind)), indent=2))
     else:
         _say(args, status.as_table(layout, state=services.state, manager=services.kind))
     return EXIT_OK

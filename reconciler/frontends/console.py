@@ -19,7 +19,7 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from reconciler import __version__
 from reconciler.base.errors import LpamError, Terminated
@@ -152,6 +152,17 @@ class Calling:
             return text
         spelled = "`" + shlex.join(self.words)
         return SUGGESTED.sub(lambda found: spelled, text)
+
+    def spell_values(self, value: Any) -> Any:
+        """A JSON value with every text in it spelled (`status --json` says the same
+        sentences as the table: a reader that shows one must be able to run it)."""
+        if isinstance(value, str):
+            return self.spell(value)
+        if isinstance(value, dict):
+            return {key: self.spell_values(item) for key, item in value.items()}
+        if isinstance(value, list):
+            return [self.spell_values(item) for item in value]
+        return value
 
 
 class Terminal:

@@ -58,6 +58,7 @@ from reconciler.base.layout import Layout
 from reconciler.engine.execution.context import Context
 from reconciler.engine.records.state import read_record
 from reconciler.frontends import cli
+from reconciler.frontends.console import Calling
 from reconciler.workflow.machine import Machine
 from tests.consistency import (
     Hint,
@@ -214,14 +215,16 @@ class TwinMachine(Machine):
 
     def context(self, store: Any, lock: Any, *, command: str, script_timeout: float,
                 report: Any, gate: Any = None, gate_wait: float = 0.0, listener: Any = None,
-                resume: str | None = None, desired: Any = None) -> tuple[Context, Path]:
+                resume: str | None = None, desired: Any = None,
+                retry_after: float | None = None) -> tuple[Context, Path]:
         log = self.layout.logs / f"{command}.log"
         ctx = Context(layout=self.layout, store=store, clock=self.clock,
                       record=read_record(self.layout), services=self.services,
                       scripts=self.world.vehicle, sleep=lambda s: None,
                       monotonic=self.world.tick, gate=gate, gate_wait=gate_wait,
                       command=resume or f"lpam {command}", desired=desired,
-                      folders=DiskFolders(layout=self.layout, store=store))
+                      folders=DiskFolders(layout=self.layout, store=store),
+                      retry_after=retry_after)
         return ctx, log
 
 
@@ -362,7 +365,9 @@ class World:
             self.note(when, [f"`lpam plan` exit {plan.code}: {plan.err.strip()}"])
             return [], plan.err
         made = Plan.model_validate_json(plan.out)
-        return [s.id for s in made.steps], render(made) + "\n" + plan.err
+        # the plan as `lpam plan` prints it: its suggestions spelled for this root
+        text = Calling.of(self.root).spell(render(made))
+        return [s.id for s in made.steps], text + "\n" + plan.err
 
     def follow(self, index: int) -> Said | None:
         """Run a suggested command as printed, from another directory (only one that names
@@ -624,7 +629,8 @@ class RealCar:
                 from schemas.plan import Plan
 
                 made = Plan.model_validate_json(plan.out)
-                steps, text = [s.id for s in made.steps], render(made) + "\n" + plan.err
+                steps = [s.id for s in made.steps]
+                text = Calling.of(self.root).spell(render(made)) + "\n" + plan.err
             else:
                 self.note(when, [f"`lpam plan` exit {plan.code}: {plan.err.strip()}"])
             self.note(when, plan_agrees(report, table, steps, text))

@@ -12,6 +12,7 @@ import pytest
 from reconciler.base.errors import Terminated
 from reconciler.base.layout import KEEP_GENERATIONS
 from reconciler.frontends import cli
+from reconciler.frontends.console import Calling
 
 
 def subcommands() -> dict[str, argparse.ArgumentParser]:
@@ -141,3 +142,17 @@ def test_ctrl_c_ends_a_follow_quietly(
     monkeypatch.setattr(logs, "new_output", following)
     assert cli.main(["--root", str(tmp_path), "logs", "-f", "-n", "2"]) == code
     assert capsys.readouterr() == ("tick 1\ntick 2\ntick 3\n", "")
+
+
+def test_status_json_spells_its_commands_as_the_table_does(tmp_path: Path) -> None:
+    """`status --json` says the table's sentences (holds, hints): a reader that shows one
+    must be able to run it as shown, here with the sandbox's root."""
+    calling = Calling.of(tmp_path / "root")
+    value = {"holds": [{"ends": "with `lpam start` or `lpam apply --release`"}],
+             "serial": 3, "app": None}
+    spelled = calling.spell_values(value)
+    assert spelled["holds"][0]["ends"] == (
+        f"with `lpam --root {tmp_path / 'root'} start` or "
+        f"`lpam --root {tmp_path / 'root'} apply --release`")
+    assert spelled["serial"] == 3 and spelled["app"] is None
+    assert Calling.of(Path("/")).spell_values(value) == value  # on a car: as written
