@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from reconciler.base.unit import unit_name
-from reconciler.core.planning.holds import release_command
+from reconciler.core.planning.holds import release_command, same_set
 from reconciler.core.planning.model import app_folder
 from schemas.report import (
     CatalogRow,
@@ -50,7 +50,7 @@ def build(seen: Seen, *, plan: Plan | str | None = None,
     last = record.last_apply
     state = None if last is None else last_state(last, alive=seen.alive)
     return StatusReport(
-        installed=[_installed(a, seen.lives.get(a.name), rolled_back=record.hold is not None,
+        installed=[_installed(a, seen.lives.get(a.name), rolled_back=held_by(record),
                               underway=seen.alive) for a in record.apps],
         service_manager=seen.manager,
         last_apply=None if last is None or state is None else LastApplyView(
@@ -100,14 +100,14 @@ def standing(app: AppRecord, live: UnitState | None) -> Standing:
     return "not running" if app.status == "running" else "installed"
 
 
-def said(app: AppRecord, live: UnitState | None, *, rolled_back: bool = False,
+def said(app: AppRecord, live: UnitState | None, *, rolled_back: str = "",
          underway: bool = False) -> str:
     """`standing` as a person needs it: what lpam did, what is still owed and by which
     command. While a rollback holds, plans propose nothing: no text promises the next
     apply's work then. `underway`: an apply lives, so a step it began is under way, not
     cut off (never both: the last apply's line says which)."""
     word = standing(app, live)
-    owed = "held by `lpam rollback`" if rolled_back else ""
+    owed = rolled_back
 
     def then(work: str) -> str:
         return f"{word} ({owed or work})"
@@ -131,7 +131,7 @@ def said(app: AppRecord, live: UnitState | None, *, rolled_back: bool = False,
         text += "; its service manager died: the next apply restarts it under a new one"
     elif not app.good:
         text += "; health not proven yet: the next apply checks it"
-    return f"{text}; held by `lpam rollback`" if owed else text
+    return f"{text}; {owed}" if owed else text
 
 
 def _step(app: AppRecord, verb: str) -> str:
@@ -142,7 +142,7 @@ def _step(app: AppRecord, verb: str) -> str:
     return f"{verb}.sh"
 
 
-def _installed(app: AppRecord, live: UnitState | None, *, rolled_back: bool,
+def _installed(app: AppRecord, live: UnitState | None, *, rolled_back: str,
                underway: bool) -> InstalledApp:
     runs, verified = running(app, live)
     unit = None if live is None else UnitView(
@@ -154,7 +154,7 @@ def _installed(app: AppRecord, live: UnitState | None, *, rolled_back: bool,
         generation=app.generation, params=app.params, running=runs, verified=verified,
         status=app.status, standing=standing(app, live),
         said=said(app, live, rolled_back=rolled_back, underway=underway), held=app.held,
-        rollback_hold=rolled_back, good=app.good, unit=unit, command=app.command,
+        rollback_hold=bool(rolled_back), good=app.good, unit=unit, command=app.command,
         launch=app.launch, user=app.user, claims=sorted(app.claims),
         claims_known=app.resources is not None)
 
@@ -193,7 +193,7 @@ def _row(listing: Listing, app: CatalogApp, seen: Seen) -> CatalogRow:
                       commit=mine.commit[:12], app=app.name,
                       service=mine.service or service_of(app), installed=True,
                       running=runs, status=mine.status, standing=standing(mine, live),
-                      said=said(mine, live, rolled_back=seen.record.hold is not None,
+                      said=said(mine, live, rolled_back=held_by(seen.record),
                                  underway=seen.alive),
                       description=app.description, verified=verified)
 
@@ -208,15 +208,36 @@ def service_of(app: CatalogApp) -> str:
     return app.service or "-"
 
 
+def reached(record: StateRecord) -> bool:
+    """Whether the rollback that holds reached the set it returns to (a step that failed
+    or a fault left it short: then plans finish it, workflow/planning.py). A hold that
+    names no set (an older lpam's) cannot be finished: taken as reached, as plans do."""
+    hold = record.hold
+    return hold is None or not hold.targets or same_set(hold.targets, record.apps)
+
+
+def held_by(record: StateRecord) -> str:
+    """What a rollback's hold owes an installed app, said ("": no rollback holds)."""
+    if record.hold is None:
+        return ""
+    if reached(record):
+        return "held by `lpam rollback`"
+    return "held by `lpam rollback`, which did not finish: the next apply finishes it"
+
+
 def holds(record: StateRecord) -> list[HoldView]:
     """Every hold on this car, what it holds against and how it ends."""
     against = record.desired.source if record.desired is not None else "the desired state"
     release = release_command(record)
     found = []
     if record.hold is not None:
+        what = (f"`lpam rollback` returned to generation {record.hold.name}, and plans "
+                "propose nothing else") if reached(record) else (
+            f"the rollback to generation {record.hold.name} did not finish (a step failed "
+            f"or it was cut off): the next `{release.removesuffix(' --release')}` finishes "
+            "it, and then plans propose nothing else")
         found.append(HoldView(
-            kind="rollback", what=f"`lpam rollback` returned to generation "
-            f"{record.hold.name}, and plans propose nothing else", against=against,
+            kind="rollback", what=what, against=against,
             ends=f"when the desired state last applied ({against}) changes, or with "
             f"`{release}`"))
     start = "`lpam start`" if len(record.apps) <= 1 else "`lpam start {name}`"

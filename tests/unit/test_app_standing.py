@@ -16,7 +16,14 @@ from reconciler.report.build import build
 from reconciler.report.gather import Listing, Seen
 from reconciler.report.status import json_of
 from schemas.catalog import CatalogApp
-from schemas.record import AppRecord, AppStatus, Hold, RepositoryRecord, StateRecord
+from schemas.record import (
+    AppRecord,
+    AppStatus,
+    HistoryEntry,
+    Hold,
+    RepositoryRecord,
+    StateRecord,
+)
 from schemas.report import Standing, StatusReport
 
 COMMIT = "c" * 40
@@ -124,3 +131,24 @@ def test_a_step_is_under_way_while_its_apply_lives_and_cut_off_once_it_is_gone(
         text = report.installed[0].said
         assert says in text and never not in text, text
         assert ("start.sh" in text) is scripts, text
+
+
+@pytest.mark.parametrize("mode", ["0", "1"])
+def test_a_rollback_that_did_not_reach_its_set_is_owed_not_done(mode: str) -> None:
+    """A rollback whose stop.sh failed left the app with the parameters it rolled back
+    from; plan then finishes the rollback. Status must not say it "returned": the hold and
+    the app's row say what the next apply still does."""
+    app = AppRecord(name="alpha", repository="apps", commit=COMMIT, tree="t" * 40,
+                    path="alpha/", generation="alp-g1", status="running", params={"M": "1"})
+    back = HistoryEntry(generation="alp-g1", app="alpha", repository="apps", commit=COMMIT,
+                        path="alpha/", tree="t" * 40, params={"M": mode}, time="T",
+                        result="applied")
+    report = build(Seen(record=StateRecord(apps=[app], hold=Hold(desired="f" * 64,
+                                                                 targets=[back]))))
+    done = mode == "1"  # the app is what the rollback returns to
+    hold = report.holds[0].what
+    assert ("returned to generation" in hold) is done, hold
+    assert ("did not finish" in hold) is not done, hold
+    said = report.installed[0].said
+    assert ("the next apply finishes it" in said) is not done, said
+    assert "held by `lpam rollback`" in said
