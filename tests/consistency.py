@@ -40,9 +40,6 @@ def both_in_progress_and_cut_off(report: dict[str, Any], table: str) -> list[str
         lines = [line for line in table.splitlines()
                  if IN_PROGRESS.search(line) or CUT_OFF.search(line)]
         found.append(f"(a) the table says in progress and cut off: {lines}")
-    if shown.startswith("in progress") and report.get("cutover") is not None:
-        found.append("(a) the JSON has an apply in progress beside a cutover cut off: "
-                     f"{shown!r}, cutover began {report['cutover'].get('began')}")
     return found
 
 

@@ -121,7 +121,9 @@ def said(app: AppRecord, live: UnitState | None, *, rolled_back: str = "",
             return then(f"{_step(app, verb)} under way: the apply in progress does it")
         if app.held:
             return then("an operator's stop did not finish: the next apply stops it")
-        return then(f"{_step(app, verb)} cut off or failed: the next apply finishes it")
+        # how it ended (a kill, Ctrl-C, a failure) is the last apply's line: the row says
+        # only what is owed, so that it never contradicts that line
+        return then(f"{_step(app, verb)} did not finish: the next apply finishes it")
     if word == "not running":
         return then("drift: the next apply starts it")
     if word == "installed":

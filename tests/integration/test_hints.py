@@ -13,12 +13,16 @@ import os
 import pty
 import re
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+
+import pytest
 
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import Lpam, apps_repo, desired
@@ -61,6 +65,24 @@ def verbatim(command: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return lpam_in(cwd, *words[1:], answer="yes")
 
 
+@pytest.fixture
+def places() -> Iterator[tuple[Path, Path]]:
+    """`here` (where the user types, the sandbox's root under it) and `elsewhere`, in a
+    short folder: pytest's own paths are too long for supervisord's socket under
+    `here/root` (a unix socket's path has at most 99 bytes). Any service manager started
+    there is shut down at the end."""
+    base = Path(tempfile.mkdtemp(prefix="lpam-hints-"))
+    here, elsewhere = base / "here", base / "elsewhere"
+    here.mkdir()
+    elsewhere.mkdir()
+    try:
+        yield here, elsewhere
+    finally:
+        if (here / "root").exists():
+            lpam_in(here, "--root", "root", "services", "shutdown")
+        shutil.rmtree(base, ignore_errors=True)
+
+
 HELD = ('touch "$LPAM_ROOT/installing"\n'
         'if [ -e "$LPAM_ROOT/hold" ]; then for _ in $(seq 600); do sleep 0.05; done; fi')
 """alpha's install.sh: while `hold` exists, it runs on (30 s at most) for the test to
@@ -89,12 +111,10 @@ def interrupted(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_a_resume_hint_and_a_stops_hint_run_as_printed_from_elsewhere(
-    tmp_path: Path, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
+    places: tuple[Path, Path], make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:
     apps_repo(make_repo("apps.git"), alpha={"install": HELD})
-    here, elsewhere = tmp_path / "here", tmp_path / "elsewhere"
-    here.mkdir()
-    elsewhere.mkdir()
+    here, elsewhere = places
     (here / "my state.yaml").write_text(desired(git_daemon.url("apps.git"), "alpha"))
     (here / "root").mkdir()
     (here / "root/hold").touch()
@@ -153,13 +173,11 @@ def test_a_resume_hint_and_a_stops_hint_run_as_printed_from_elsewhere(
 
 
 def test_import_lpams_hint_keeps_the_root(
-    tmp_path: Path, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
+    places: tuple[Path, Path], make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon
 ) -> None:
     repo = make_repo("apps.git")
     commit = apps_repo(repo)
-    here, elsewhere = tmp_path / "here", tmp_path / "elsewhere"
-    here.mkdir()
-    elsewhere.mkdir()
+    here, elsewhere = places
     lpam_vehicle(Lpam(here / "root"), repo, commit)
     done = lpam_in(here, "--root", "root", "import-lpam", "-o", "imported.yaml")
     assert done.returncode == 0, done.stderr

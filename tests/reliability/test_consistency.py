@@ -382,7 +382,7 @@ class World:
                 mock.patch("builtins.input", lambda question="": "yes"):  # a terminal
             said = self.lpam(*argv[1:], root=False, cwd=self.elsewhere)
         wished = applies(argv, self.root)
-        if wished is not None:  # what the plan is compared with from now on
+        if wished is not None and wished.exists():  # what the plan is compared with now
             self.wished = wished
         self.note(f"running `{hint.text}`", failed_as_printed(hint, int(said.code)
                                                              if isinstance(said.code, int)
@@ -666,7 +666,7 @@ class RealCar:
             os.close(main)
             os.close(terminal)
         wished = applies(argv, self.root)
-        if wished is not None:  # what the plan is compared with from now on
+        if wished is not None and wished.exists():  # what the plan is compared with now
             self.wished = wished
         self.note(f"running `{hint.text}`", failed_as_printed(hint, proc.returncode, err))
         return Said(argv, proc.returncode, out, err, began=last_apply(self.root) != before)

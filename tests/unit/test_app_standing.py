@@ -126,7 +126,8 @@ def test_a_step_is_under_way_while_its_apply_lives_and_cut_off_once_it_is_gone(
                     path="alpha/", generation="alp-g1", status="starting",
                     command=None if scripts else ["python3", "run.py"])
     record = StateRecord(apps=[app])
-    for alive, says, never in ((True, "under way", "cut off"), (False, "cut off", "under way")):
+    for alive, says, never in ((True, "under way", "did not finish"),
+                               (False, "did not finish", "under way")):
         report = build(Seen(record=record, alive=alive))
         text = report.installed[0].said
         assert says in text and never not in text, text
