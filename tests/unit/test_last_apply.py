@@ -233,3 +233,19 @@ def test_an_apply_with_nothing_to_do_writes_nothing_after_a_settled_one() -> Non
     owed = record(LastApply(time=WHEN, result="failed"),
                   cutover=CUTOVER.model_copy(update={"rollback": rollback}))
     assert settled(owed, now=WHEN, desired=None) is None
+
+
+def test_an_apply_of_another_desired_state_with_nothing_to_do_ends_a_rollbacks_hold() -> None:
+    """Found by the consistency property: apply {z}; apply {}; rollback (back to z); apply
+    {z} — the desired state changed, so the hold no longer holds and the car matches; the
+    hold stayed in the record and status kept naming it above "No changes"."""
+    from schemas.record import Hold
+
+    last = LastApply(time=WHEN, result="applied")
+    held = record(last).model_copy(update={"hold": Hold(desired="f" * 64)})
+    same = DesiredRef(fingerprint="f" * 64, source="/car/etc/lpam/desired-state.yaml")
+    assert settled(held, now=WHEN, desired=same) is None  # the hold still holds
+    other = DesiredRef(fingerprint="e" * 64, source="/car/etc/lpam/desired-state.yaml")
+    after = settled(held, now=WHEN, desired=other)
+    assert after is not None and after.hold is None and after.desired == other
+    assert "Held:" not in said(after)[0]

@@ -185,11 +185,15 @@ def settled(record: StateRecord, *, now: str, desired: DesiredRef | None
     last = record.last_apply
     owed = last is not None and last.result in STALE
     cut_off = record.cutover is not None and record.cutover.rollback is None
-    if not owed and not cut_off:
+    # A rollback's hold ends when the desired state changes; an apply of another desired
+    # state that the car already matches has nothing to do, and ends it all the same.
+    hold = record.hold if record.hold is None or desired is None \
+        or record.hold.desired == desired.fingerprint else None
+    if not owed and not cut_off and hold == record.hold:
         return None
     # Under a rollback's hold nothing to do means the car is what the rollback returned to,
     # not what the checkouts hold.
-    repositories = record.repositories if record.hold is not None else \
+    repositories = record.repositories if hold is not None else \
         [r.model_copy(update={"applied": r.commit}) for r in record.repositories]
     return record.model_copy(update={
         "last_apply": LastApply(time=now, result="applied",
@@ -198,6 +202,7 @@ def settled(record: StateRecord, *, now: str, desired: DesiredRef | None
         "repositories": repositories,
         "cutover": None,
         "desired": desired or record.desired,
+        "hold": hold,
     })
 
 
