@@ -249,3 +249,22 @@ def test_an_apply_of_another_desired_state_with_nothing_to_do_ends_a_rollbacks_h
     after = settled(held, now=WHEN, desired=other)
     assert after is not None and after.hold is None and after.desired == other
     assert "Held:" not in said(after)[0]
+
+
+def test_an_apply_of_another_desired_state_ends_a_hold_even_when_it_installs_the_same_set(
+) -> None:
+    """Found by the consistency property: apply {z}; apply {}; rollback (back to z); z's
+    unit stopped outside; apply {z} starts it — of a desired state other than the one held
+    against, so the hold ends, though the set is the one the rollback returned to."""
+    from reconciler.engine.execution.recovery import hold_after
+    from schemas.record import HistoryEntry, Hold
+
+    z = AppRecord(name="z", repository="apps", commit="c" * 40, tree="t" * 40, path="z/",
+                  generation="z-g1", status="running")
+    back = HistoryEntry(generation="z-g1", app="z", repository="apps", commit="c" * 40,
+                        path="z/", tree="t" * 40, time=WHEN, result="applied")
+    held = StateRecord(apps=[z], hold=Hold(desired="f" * 64, targets=[back]))
+    same = DesiredRef(fingerprint="f" * 64, source="/car/etc/lpam/desired-state.yaml")
+    other = DesiredRef(fingerprint="e" * 64, source="/car/etc/lpam/desired-state.yaml")
+    assert hold_after(held, "applied", same) == held.hold  # it finished the rollback
+    assert hold_after(held, "applied", other) is None

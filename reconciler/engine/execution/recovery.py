@@ -315,12 +315,17 @@ def finish_pending(ctx: Context, rollback: Rollback, previous: list[AppRecord]) 
     return error(message, hint="fix the app (or its health settings) and apply again")
 
 
-def hold_after(record: StateRecord, result: ApplyResult) -> Hold | None:
+def hold_after(record: StateRecord, result: ApplyResult,
+               desired: DesiredRef | None = None) -> Hold | None:
     """An apply that installs something other than what a rollback returned to ends the
-    hold; the apply that finished a cut-off rollback keeps it."""
+    hold, and so does one of a desired state other than the one held against (`desired`:
+    what this apply worked toward) even if it installs just that; the apply that finished
+    a cut-off rollback keeps it."""
     hold = record.hold
     if hold is None or result != "applied":
         return hold
+    if desired is not None and desired.fingerprint != hold.desired:
+        return None
     return hold if record.apps and same_set(hold.targets, record.apps) else None
 
 
@@ -348,7 +353,7 @@ def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
                                 command=None if result == "applied" else ctx.command),
         "repositories": repositories,
         "history": [e for s in history_sets(history)[-KEEP_SETS:] for e in s],
-        "hold": hold_after(ctx.record, result),
+        "hold": hold_after(ctx.record, result, ctx.desired),
         "cutover": ctx.record.cutover if result == "failed" else None,
     }))
 
