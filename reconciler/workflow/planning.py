@@ -163,12 +163,12 @@ def interrupted_note(interrupted: tuple[str, ...], made: Plan) -> str:
     planned = {s.id for s in made.steps}
     again = [s for s in interrupted if s in planned]
     if again:
-        return (f"the last apply was interrupted during {cut}; the steps below finish it "
+        return (f"the last apply stopped during {cut}; the steps below finish it "
                 f"({', '.join(again)} again)")
     if made.steps:
-        return (f"the last apply was interrupted during {cut}; its script finished since, so "
+        return (f"the last apply stopped during {cut}; its script finished since, so "
                 "it is not run again; the steps below finish the apply")
-    return f"the last apply was interrupted during {cut}; its script finished since, so " \
+    return f"the last apply stopped during {cut}; its script finished since, so " \
         "nothing is left to redo"
 
 
