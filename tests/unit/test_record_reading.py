@@ -17,7 +17,7 @@ import pytest
 from reconciler.base.errors import ConfigError
 from reconciler.base.layout import Layout
 from reconciler.engine.records.state import read_record, write_record
-from schemas.record import AppRecord, RepositoryRecord, StateRecord
+from schemas.record import CURRENT_VERSION, AppRecord, RepositoryRecord, StateRecord
 
 
 def a_record(layout: Layout) -> None:
@@ -42,7 +42,9 @@ def test_a_record_of_a_newer_lpam_still_names_the_line_of_its_version(
     layout = Layout(tmp_path)
     a_record(layout)
     text = layout.state_record.read_text()
-    layout.state_record.write_text(text.replace('"version": 6', '"version": 9'))
+    written = f'"version": {CURRENT_VERSION}'
+    assert written in text
+    layout.state_record.write_text(text.replace(written, f'"version": {CURRENT_VERSION + 2}'))
     with pytest.raises(ConfigError) as info:
         read_record(layout)
     line = next(n for n, t in enumerate(text.splitlines(), 1) if '"version"' in t)
