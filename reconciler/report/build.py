@@ -115,15 +115,17 @@ def said(app: AppRecord, live: UnitState | None, *, rolled_back: str = "",
     if word == "stopped by operator":
         return word if not owed else then("")
     if word in ("stopping", "starting"):
+        runs, verified = running(app, live)
+        unsure = f"; unverified: recorded {app.status}" if runs and not verified else ""
         verb = {"installing": "install", "starting": "start", "uninstalling": "uninstall"}\
             .get(app.status, "stop")
         if underway:
-            return then(f"{_step(app, verb)} under way: the apply in progress does it")
+            return then(f"{_step(app, verb)} under way: the apply in progress does it") + unsure
         if app.held:
-            return then("an operator's stop did not finish: the next apply stops it")
+            return then("an operator's stop did not finish: the next apply stops it") + unsure
         # how it ended (a kill, Ctrl-C, a failure) is the last apply's line: the row says
         # only what is owed, so that it never contradicts that line
-        return then(f"{_step(app, verb)} did not finish: the next apply finishes it")
+        return then(f"{_step(app, verb)} did not finish: the next apply finishes it") + unsure
     if word == "not running":
         return then("drift: the next apply starts it")
     if word == "installed":

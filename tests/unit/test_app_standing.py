@@ -153,3 +153,13 @@ def test_a_rollback_that_did_not_reach_its_set_is_owed_not_done(mode: str) -> No
     said = report.installed[0].said
     assert ("the next apply finishes it" in said) is not done, said
     assert "held by `lpam rollback`" in said
+
+
+def test_a_stop_that_did_not_finish_on_an_unknown_unit_is_marked_unverified() -> None:
+    """Found by the consistency property: `lpam stop` killed before its first step left
+    an app held while its record says running and no manager knows its unit; the row
+    showed Running yes and nowhere that this is only lpam's record."""
+    report = car("running", UNKNOWN, held=True)
+    [app] = report.installed
+    assert app.running and not app.verified
+    assert app.standing == "stopping" and "unverified" in app.said, app.said
