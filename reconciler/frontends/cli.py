@@ -28,7 +28,13 @@ from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS, Layout
 from reconciler.base.text import columns, counted, printable
-from reconciler.frontends.console import Calling, Terminal, debug_log, exit_code, terminate
+from reconciler.frontends.console import (
+    Calling,
+    Terminal,
+    debug_log,
+    exit_code,
+    raise_signals_where_lpam_stands,
+)
 from reconciler.workflow.defaults import SCRIPT_TIMEOUT
 
 if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fast
@@ -283,7 +289,7 @@ def entry() -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    signal.signal(signal.SIGTERM, terminate)
+    raise_signals_where_lpam_stands()
     layout = _layout(args)
     for name, value in vars(args).items():
         if isinstance(value, Path):  # said back in hints and records: run from anywhere

@@ -14,7 +14,9 @@ import contextlib
 import os
 import re
 import shlex
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,9 +36,43 @@ T = TypeVar("T")
 
 EXIT_BUG, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 130, 143  # 128 + SIGINT, 128 + SIGTERM
 
+REDELIVER_SECONDS = 0.01
+
+
 def terminate(signum: int, frame: object) -> None:
     """SIGTERM as an exception raised where lpam stands (reconciler/base/errors.py)."""
     raise Terminated
+
+
+def raise_signals_where_lpam_stands() -> None:
+    """SIGTERM raises `Terminated` and Ctrl-C `KeyboardInterrupt` wherever lpam stands — and
+    one that lands where Python cannot raise is delivered again instead of lost.
+
+    Python runs a signal's handler between any two bytecodes, also inside a weakref
+    callback or a `__del__` (the import system's module locks have one): an exception
+    raised there is printed as "Exception ignored in …" with its traceback, and the command
+    goes on as if it had not been asked to stop. `_redelivered` catches that case, prints
+    nothing, and raises the same interrupt again moments later, where lpam stands.
+    """
+    signal.signal(signal.SIGTERM, terminate)
+    sys.unraisablehook = _redelivered
+
+
+def _redelivered(unraisable: Any) -> None:
+    """sys.unraisablehook: an interrupt that could not be raised is raised again
+    REDELIVER_SECONDS later (by SIGALRM, which lpam uses for nothing else), by then out of
+    the callback it fell in; anything else is printed as Python prints it."""
+    lost = unraisable.exc_type
+    if (not issubclass(lost, (Terminated, KeyboardInterrupt))
+            or threading.current_thread() is not threading.main_thread()):
+        sys.__unraisablehook__(unraisable)
+        return
+
+    def again(signum: int, frame: object) -> None:
+        raise lost()
+
+    signal.signal(signal.SIGALRM, again)
+    signal.setitimer(signal.ITIMER_REAL, REDELIVER_SECONDS)
 
 
 def debug_log(layout: Layout) -> str:

@@ -24,7 +24,6 @@ written as a space.
 from __future__ import annotations
 
 import os
-import signal
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -279,7 +278,11 @@ def one_line(exc: LpamError) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from reconciler.frontends.console import debug_log, exit_code, terminate
+    from reconciler.frontends.console import (
+        debug_log,
+        exit_code,
+        raise_signals_where_lpam_stands,
+    )
 
     try:
         command = parse(sys.argv[1:] if argv is None else argv)
@@ -290,7 +293,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         _fail(f"{exc} (see {PROG} -h)")
         return EXIT_USAGE
-    signal.signal(signal.SIGTERM, terminate)
+    raise_signals_where_lpam_stands()
 
     def body() -> int:
         if command.help:  # guarded too: `-h | head` closes stdout early
