@@ -16,7 +16,10 @@ import shlex
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from schemas.plan import Plan
 
 IN_PROGRESS = re.compile(r"\bin progress\b", re.IGNORECASE)
 CUT_OFF = re.compile(r"\bcut off\b", re.IGNORECASE)
@@ -99,13 +102,24 @@ def differs(report: dict[str, Any]) -> list[str]:
     return found
 
 
+def proposed(made: Plan) -> list[str]:
+    """What a plan proposes: its steps, or with none the changes it still makes — an apply
+    with nothing to run that ends what an earlier apply left owed writes the record
+    (reconciler/core/planning/settling.py)."""
+    from schemas.plan import Action
+
+    return [s.id for s in made.steps] or \
+        [c.address for c in made.changes if c.action is not Action.NOOP]
+
+
 def plan_agrees(report: dict[str, Any], table: str, steps: Sequence[str],
                 plan_text: str) -> list[str]:
-    """(b) `plan` proposes no step ⇔ the report shows nothing pending except holds, which
-    it names (the table too), and then the plan does not say the machine matches."""
+    """(b) `plan` proposes nothing (`proposed`) ⇔ the report shows nothing pending except
+    holds, which it names (the table too), and then the plan does not say the machine
+    matches."""
     found = []
     if not steps and owed(report):
-        found.append(f"(b) plan proposes no step, but the report says owed: {owed(report)}")
+        found.append(f"(b) plan proposes nothing, but the report says owed: {owed(report)}")
     if steps and not differs(report):
         found.append(f"(b) plan proposes {list(steps)}, but the report shows nothing "
                      "pending")

@@ -88,6 +88,7 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
 
     from reconciler.core.planning.holds import hold_reason, released
     from reconciler.core.planning.plan import make_plan
+    from reconciler.core.planning.settling import settling
     from reconciler.engine.observe.machine import asks_manager, observe
     from reconciler.engine.observe.targets import Fetch, resolve
     from reconciler.engine.records.legacy.appdir import libpanda_user
@@ -100,7 +101,8 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
         return store, _finishing_plan(machine, record, report)
     hold = hold_reason(record, desired)
     if hold is not None:  # a rollback holds: nothing to resolve, no network needed
-        return store, _held_plan(machine, store, record, hold, report)
+        held = _held_plan(machine, store, record, hold, report)
+        return store, held if busy is not None else settling(held, record)
     targets = resolve(desired, base_dir=path.resolve().parent, store=store, fetch=fetch,
                       default_user=libpanda_user(layout), root=layout.root,
                       notice=lambda text: report(Note(text)))
@@ -119,6 +121,8 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
         report(Note(busy_note(busy)))
     made = make_plan(targets, observed, now=machine.clock(), lpam_version=__version__,
                      offline=fetch is Fetch.OFFLINE)
+    if busy is None:  # under the lock (or with no apply beside it): what it leaves owed ends
+        made = settling(made, observed.record)
     report(Phase("plan"))
     if busy is None and observed.interrupted:
         report(Note(interrupted_note(observed.interrupted, made)))

@@ -71,3 +71,57 @@ def test_a_hold_on_a_file_is_released_by_applying_that_file() -> None:
     fleet = DesiredRef(fingerprint="f" * 64, source="fleet@0123abcd/vehicles/rav4.yaml")
     assert release_command(held.model_copy(update={"desired": fleet})) == \
         "lpam apply --release"
+
+
+def test_a_cut_off_apply_under_an_operators_stop_is_a_change_the_plan_names() -> None:
+    """An apply killed before it started its apps, then `lpam stop`: status says the cut-off
+    apply goes on with `lpam apply`; the plan, with no step left, says what that apply
+    does — it records the cut-off apply finished — never "No changes" beside the stop
+    (the 5,000-example consistency run, issue 30)."""
+    from reconciler.core.planning.settling import settling
+    from schemas.plan import Action
+    from schemas.record import LastApply
+
+    seen = stopped("x")
+    cut = seen.record.model_copy(update={"last_apply": LastApply(
+        time="2026-11-27T10:00:00+00:00", result="in progress", pid=4242)})
+    plan = settling(make_plan(Targets((repo(),), (app(),)), stopped("x"), now=NOW,
+                              lpam_version="t"), cut)
+    assert plan.steps == []
+    assert [(c.address, c.action) for c in plan.changes if c.action is not Action.NOOP] == \
+        [("last-apply", Action.UPDATE)]
+    assert plan.has_changes  # `lpam plan --detailed-exitcode` exits 2: apply writes
+    assert plan.summary == (
+        "Nothing to run because of the holds in force: x stopped by `lpam stop` (`lpam start "
+        "x` starts it); `lpam apply` records that the last apply (cut off, began "
+        "2026-11-27T10:00:00+00:00) has nothing left to do.")
+    assert MATCHES not in render(plan)
+
+
+def test_a_deferred_apply_the_machine_now_matches_is_ended_by_the_plan() -> None:
+    from reconciler.core.planning.settling import settling
+    from schemas.record import LastApply
+
+    seen = observed(app_rec=installed())
+    deferred = seen.record.model_copy(update={"last_apply": LastApply(
+        time="2026-11-27T10:00:00+00:00", result="deferred", gates=["vehicle"])})
+    plan = settling(make_plan(Targets((repo(),), (app(),)), seen, now=NOW,
+                              lpam_version="t"), deferred)
+    assert plan.summary == (
+        "Nothing to run: the machine matches the desired state; `lpam apply` records that "
+        "the last apply (deferred at 2026-11-27T10:00:00+00:00) has nothing left to do.")
+
+
+def test_a_plan_with_steps_or_nothing_owed_is_left_as_it_is() -> None:
+    from reconciler.core.planning.settling import settling
+    from schemas.record import LastApply
+
+    seen = observed(app_rec=installed())
+    nothing = make_plan(Targets((repo(),), (app(),)), seen, now=NOW, lpam_version="t")
+    assert settling(nothing, seen.record) == nothing  # the last apply succeeded
+    steps = make_plan(Targets((repo(),), (app(params={"MODE": "9"}),)), seen, now=NOW,
+                      lpam_version="t")
+    assert steps.steps
+    cut = seen.record.model_copy(update={"last_apply": LastApply(
+        time="2026-11-27T10:00:00+00:00", result="in progress", pid=4242)})
+    assert settling(steps, cut) == steps  # its steps go on from where the apply stood

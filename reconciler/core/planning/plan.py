@@ -15,6 +15,7 @@ from reconciler.core.planning.diff import apps_planned, diff
 from reconciler.core.planning.graph import steps_for
 from reconciler.core.planning.holds import release_command
 from reconciler.core.planning.model import UNKNOWN, Observed, Targets
+from reconciler.core.planning.settling import HELD
 from schemas.generation import AppGeneration, StrayGeneration
 from schemas.plan import Action, BuildStep, Change, CheckoutStep, Plan, Step, fingerprint
 from schemas.record import StateRecord
@@ -57,7 +58,7 @@ def held_summary(record: StateRecord, *, rollback: bool, stopped: list[str]) -> 
         start = f"`lpam start {stopped[0]}` starts it" if one else \
             "`lpam start` starts them"
         holds.append(f"{', '.join(stopped)} stopped by `lpam stop` ({start})")
-    return f"No changes because of the holds in force: {'; '.join(holds)}." if holds else None
+    return f"{HELD}{'; '.join(holds)}." if holds else None
 
 
 def seal(record: StateRecord, changes: list[Change], steps: list[Step], *, now: datetime,

@@ -33,6 +33,7 @@ from reconciler.core.planning.holds import same_set
 from reconciler.core.planning.lifecycle import resume_text
 from reconciler.core.planning.model import GenerationKey
 from reconciler.core.planning.modes import names, steps_back
+from reconciler.core.planning.settling import owed
 from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.steps import run
 from reconciler.engine.records.journal import Journal
@@ -170,11 +171,6 @@ def deferred(ctx: Context, exc: Deferred, *, desired: DesiredRef | None) -> None
         ctx.save(ctx.record.model_copy(update={"last_apply": last, "desired": desired}))
 
 
-STALE: frozenset[str] = frozenset({"in progress", "deferred", "interrupted"})
-"""Last applies that owe the car something (to resume, or to try again): an apply that
-finds nothing to do ends them. Under the apply lock an `in progress` is one cut off."""
-
-
 def settled(record: StateRecord, *, now: str, desired: DesiredRef | None
             ) -> StateRecord | None:
     """The record after an apply that had nothing to do (None: nothing to write). The
@@ -182,14 +178,12 @@ def settled(record: StateRecord, *, now: str, desired: DesiredRef | None
     apply before it no longer applies: status must not keep telling the user to resume
     it. A cutover that was cut off after its last step ends too (a rollback still owed is
     finished by its own plan, never here); what the checkouts hold is what runs."""
-    last = record.last_apply
-    owed = last is not None and last.result in STALE
-    cut_off = record.cutover is not None and record.cutover.rollback is None
+    owes = owed(record) is not None  # what the plan said it ends (core/planning/settling)
     # A rollback's hold ends when the desired state changes; an apply of another desired
     # state that the car already matches has nothing to do, and ends it all the same.
     hold = record.hold if record.hold is None or desired is None \
         or record.hold.desired == desired.fingerprint else None
-    if not owed and not cut_off and hold == record.hold:
+    if not owes and hold == record.hold:
         return None
     # Under a rollback's hold nothing to do means the car is what the rollback returned to,
     # not what the checkouts hold.
