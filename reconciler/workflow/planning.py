@@ -32,22 +32,24 @@ def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
          offline: bool = False, out: Path | None = None, lock_timeout: float | None = None,
          places: Sequence[tuple[int, int]] = ()) -> Plan:
     """`lpam plan`: exact when it can take the lock, from what is local beside a running
-    apply (said in a note) or when `offline`. `out` saves the plan (an exact one only).
+    apply (after waiting for it), at once beside a script an ended apply left running
+    (said in a note), or when `offline`. `out` saves the plan (an exact one only).
     `places`: each desired app's (line, column) in `path` (a `DesiredDocument`'s), where
     a refusal names it; none for a desired state made in code (the file alone)."""
-    from reconciler.engine.execution.lock import apply_lock, holder
+    from reconciler.engine.execution.lock import Holding, apply_lock, holder
     from reconciler.engine.observe.targets import Fetch
 
     if offline and out is not None:
         raise LpamError("an --offline plan cannot be saved: it may hold values known only "
                         "after a fetch", hint="drop --offline to save an exact plan")
-    busy = holder(machine.layout) if offline else None
-    if not offline:
+    held = holder(machine.layout)
+    # A script of an apply that has ended holds the lock until it ends, whenever that is:
+    # no apply will release it, so a plan to read makes no one wait (one to save must).
+    orphan = held is not None and Holding.of(held).orphaned and out is None
+    busy = held if offline or orphan else None
+    if not offline and not orphan:
         wait = LOCK_TIMEOUT if lock_timeout is None else lock_timeout
-        held = holder(machine.layout)
         if held is not None:  # say why the plan is silent meanwhile, in apply's words
-            from reconciler.engine.execution.lock import Holding
-
             report(Note(f"waiting up to {wait:g} s for the apply lock, held by "
                         f"{Holding.of(held).describe()}"))
         try:
