@@ -3,19 +3,25 @@ daemon, real files under the test's root, and the current user in the part of ro
 
 What a user checks: after a first apply — even one run with a umask that would let the
 group and everyone write (`umask 000`) — nothing lpam made under the root can be written
-by anyone but its owner.
+by anyone but its owner; and when someone opens a hole (makes the desired state
+world-writable, the state record's directory group-writable, a directory above lpam's
+files writable, or gives the store to another user), `lpam status` names that path and the
+command that closes it, in the table and in `--json`, and says nothing once it is closed.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shlex
 import stat
+import subprocess
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
+from reconciler.base.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import TICKER, Lpam, add_app
 from tests.integration.test_fault_truth import lpam  # noqa: F401 (stops its supervisord)
@@ -28,6 +34,8 @@ apps:
   - name: alpha
     path: alpha/
 """
+
+NOBODY = 65534  # a user that is not the one lpam runs as
 
 
 @pytest.fixture
@@ -73,6 +81,61 @@ def writable_by_others(root: Path) -> list[str]:
     return sorted(found)
 
 
+def exposed(car: Lpam) -> tuple[str, list[dict[str, object]]]:
+    """What `lpam status` says of files others may change: its table's lines, its JSON."""
+    table = car("status")
+    assert table.returncode == 0, table.stderr
+    lines = "\n".join(line for line in table.stdout.splitlines() if "chmod" in line
+                      or "chown" in line)
+    shown: list[dict[str, object]] = car.status()["exposed"]
+    return lines, shown
+
+
 def test_a_first_apply_leaves_nothing_others_may_write(applied: Lpam) -> None:
     assert writable_by_others(applied.root) == []
+    assert exposed(applied) == ("", [])  # and status has nothing to say of it
 
+
+def _world_writable_desired_state(layout: Layout) -> Path:
+    layout.desired_state.chmod(0o666)
+    return layout.desired_state
+
+
+def _group_writable_record_directory(layout: Layout) -> Path:
+    layout.state_record.parent.chmod(0o775)
+    return layout.state_record.parent
+
+
+def _group_writable_directory_above(layout: Layout) -> Path:
+    above = layout.root / "var" / "log"  # lpam's logs are in it; lpam did not make it so
+    above.chmod(0o777)
+    return above
+
+
+def _store_given_to_another_user(layout: Layout) -> Path:
+    if os.geteuid() != 0:
+        pytest.skip("only root can give a directory to another user (chown): run as root "
+                    "to test the owner's check")
+    os.chown(layout.repositories, NOBODY, -1)
+    return layout.repositories
+
+
+@pytest.mark.parametrize(("hole", "problem", "fix"), [
+    (_world_writable_desired_state, "world-writable", "chmod go-w"),
+    (_group_writable_record_directory, "writable by its group", "chmod go-w"),
+    (_group_writable_directory_above, "world-writable", "chmod go-w"),
+    (_store_given_to_another_user, f"(uid {NOBODY})", "chown root"),
+], ids=["desired state", "record's directory", "directory above", "store's owner"])
+def test_status_names_a_path_others_may_change_and_how_to_close_it(
+    applied: Lpam, hole: Callable[[Layout], Path], problem: str, fix: str
+) -> None:
+    path = hole(Layout(applied.root))
+    command = f"{fix} {shlex.quote(str(path))}"
+    lines, shown = exposed(applied)
+    [line] = lines.splitlines()
+    assert str(path) in line and problem in line and f"`{command}`" in line
+    assert "can change what lpam runs as root" in line
+    [entry] = shown
+    assert entry["path"] == str(path) and entry["fix"] == command
+    subprocess.run(command, shell=True, check=True)  # the fix, as the operator types it
+    assert exposed(applied) == ("", [])
