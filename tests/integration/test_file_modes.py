@@ -16,6 +16,7 @@ import os
 import shlex
 import stat
 import subprocess
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -39,16 +40,21 @@ NOBODY = 65534  # a user that is not the one lpam runs as
 
 
 @pytest.fixture
-def applied(lpam: Lpam, make_repo: Callable[[str], RepoBuilder],  # noqa: F811
-            git_daemon: GitDaemon) -> Lpam:
-    """A root after a first apply of a supervised app (ticker) and an app of scripts
-    (alpha), run by an lpam whose umask lets everyone write what it creates."""
+def apps(make_repo: Callable[[str], RepoBuilder]) -> RepoBuilder:
+    """apps.git: a supervised app (ticker) and an app of scripts (alpha)."""
     builder = make_repo("apps.git")
     builder.write("libpanda-apps.yaml", CATALOG)
     builder.write("ticker/ticker.py", TICKER)
     add_app(builder, "alpha")
     builder.commit("ticker and alpha")
     builder.push()
+    return builder
+
+
+@pytest.fixture
+def applied(lpam: Lpam, apps: RepoBuilder, git_daemon: GitDaemon) -> Lpam:  # noqa: F811
+    """A root after a first apply of apps.git's two apps, run by an lpam whose umask lets
+    everyone write what it creates."""
     lpam.desired("version: 2\nrepositories:\n"
                  f"  - url: {git_daemon.url('apps.git')}\n"
                  "apps:\n  - name: ticker\n  - name: alpha\n")
@@ -94,6 +100,24 @@ def exposed(car: Lpam) -> tuple[str, list[dict[str, object]]]:
 def test_a_first_apply_leaves_nothing_others_may_write(applied: Lpam) -> None:
     assert writable_by_others(applied.root) == []
     assert exposed(applied) == ("", [])  # and status has nothing to say of it
+
+
+def test_libpanda_app_manager_leaves_nothing_others_may_write(
+    applied: Lpam, apps: RepoBuilder
+) -> None:
+    """LPAM's command line is a face of its own: a new commit fetched and applied by `-p`
+    (new objects in the store, a new generation of alpha) under the same umask."""
+    apps.commit("alpha changes", {"alpha/notes.txt": "x\n"})
+    apps.push()
+    before = {a["name"]: a["generation"] for a in applied.status()["installed"]}
+    with umask(0):
+        done = subprocess.run([sys.executable, "-m", "reconciler.frontends.shim", "-p"],
+                              capture_output=True, text=True, timeout=120,
+                              env={**os.environ, "LPAM_ROOT": str(applied.root)})
+    assert done.returncode == 0, done.stderr
+    after = {a["name"]: a["generation"] for a in applied.status()["installed"]}
+    assert after["alpha"] != before["alpha"] and after["ticker"] == before["ticker"]
+    assert writable_by_others(applied.root) == []
 
 
 def _world_writable_desired_state(layout: Layout) -> Path:
