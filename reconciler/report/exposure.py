@@ -111,7 +111,8 @@ def watched(layout: Layout, record: StateRecord) -> list[Watched]:
 
 def exposed(files: Files) -> list[ExposedPath]:
     """Each path another user may change, with what to do, in the order watched."""
-    me = files.users.get(files.user) or f"uid {files.user}"
+    name = files.users.get(files.user)
+    me, chown = (name, name) if name else (f"uid {files.user}", str(files.user))
     found = []
     for item in files.found:
         writers = _writers(item)
@@ -120,7 +121,7 @@ def exposed(files: Files) -> list[ExposedPath]:
         if not writers and owner is None:
             continue
         path = shlex.quote(str(item.path))
-        fix = " && ".join([*([f"chown {me} {path}"] if owner is not None else []),
+        fix = " && ".join([*([f"chown {chown} {path}"] if owner is not None else []),
                            *([f"chmod go-w {path}"] if writers else [])])
         group = files.groups.get(item.gid) or f"gid {item.gid}"
         problems = (["world-writable"] if "others" in writers else

@@ -85,6 +85,9 @@ def test_owned_by_root_is_never_another_users_and_both_faults_have_one_fix() -> 
     assert found.fix == "chown pi '/x y/desired-state.yaml' && chmod go-w '/x y/desired-state.yaml'"
     assert "world-writable and owned by an unknown user (uid 1001)" in found.said
     assert "what lpam runs as pi" in found.said
+    [nameless] = exposed(files(file("/etc/lpam/agent.yaml", 0o644, uid=OTHER), user=1001))
+    assert nameless.fix == "chown 1001 /etc/lpam/agent.yaml"  # a command chown takes
+    assert "what lpam runs as uid 1001" in nameless.said
 
 
 def test_watched_is_known_paths_and_the_directories_above_them_to_the_root(
