@@ -198,6 +198,26 @@ class Deferral(_View):
                               "again (None: the next `lpam apply` does)")
 
 
+Writer = Literal["group", "others"]
+"""Who besides its owner may write a path: its group, or every other user."""
+
+
+class ExposedPath(_View):
+    """One of lpam's files or directories (or a directory above them) that a user other
+    than its owner may change, and so change what lpam runs as root; how to close it
+    (reconciler/report/exposure.py decides)."""
+
+    path: str
+    what: str = Field(description="what lpam keeps there, or `a directory above lpam's "
+                      "files`")
+    writable_by: list[Writer] = Field(default_factory=list, description="who besides its "
+                                      "owner may write it")
+    owner: str | None = Field(default=None, description="its owner, when that is neither "
+                              "root nor the user lpam runs as")
+    fix: str = Field(description="the command that closes it")
+    said: str = Field(description="the path, what is wrong and the fix, said")
+
+
 class PlanView(_View):
     """What an apply would do now (planned offline): each change and why, or why it is
     not known."""
@@ -228,6 +248,9 @@ class StatusReport(_View):
     deferred: Deferral | None = None
     plan: PlanView | None = None
     gates: str | None = Field(default=None, description="the update gates now, said")
+    exposed: list[ExposedPath] = Field(default_factory=list, description="lpam's files "
+                                       "and directories another user may change (empty: "
+                                       "none)")
 
     def listed(self) -> list[CatalogRow]:
         """The rows that are apps, not notes about a repository (LPAM's `-d`, the phone)."""

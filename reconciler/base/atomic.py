@@ -12,6 +12,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from reconciler.base.modes import private
+
 
 def fsync_dir(directory: Path) -> None:
     """Make a rename or a new entry in `directory` durable."""
@@ -23,7 +25,9 @@ def fsync_dir(directory: Path) -> None:
 
 
 def write_atomic(path: Path, data: bytes | str, *, mode: int = 0o644) -> None:
-    """Replace `path` with `data` atomically and durably."""
+    """Replace `path` with `data` atomically and durably, with `mode` less group and other
+    write: a mode kept from the file replaced (an edited desired state) never carries a
+    hole forward (reconciler/base/modes.py)."""
     if isinstance(data, str):
         data = data.encode("utf-8")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -33,7 +37,7 @@ def write_atomic(path: Path, data: bytes | str, *, mode: int = 0o644) -> None:
             handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
-        os.chmod(tmp, mode)
+        os.chmod(tmp, private(mode))
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS, Layout
+from reconciler.base.modes import keep_writes_private
 from reconciler.base.text import columns, counted, printable
 from reconciler.frontends.console import (
     Calling,
@@ -290,6 +291,7 @@ def entry() -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     raise_signals_where_lpam_stands()
+    keep_writes_private()  # nothing lpam makes is writable by group or others (base/modes.py)
     layout = _layout(args)
     for name, value in vars(args).items():
         if isinstance(value, Path):  # said back in hints and records: run from anywhere

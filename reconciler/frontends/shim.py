@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.base.errors import LpamError
+from reconciler.base.modes import keep_writes_private
 from reconciler.base.text import counted
 
 if TYPE_CHECKING:
@@ -294,6 +295,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _fail(f"{exc} (see {PROG} -h)")
         return EXIT_USAGE
     raise_signals_where_lpam_stands()
+    keep_writes_private()  # nothing lpam makes is writable by group or others (base/modes.py)
 
     def body() -> int:
         if command.help:  # guarded too: `-h | head` closes stdout early

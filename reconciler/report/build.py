@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 from reconciler.base.unit import unit_name
 from reconciler.core.planning.holds import release_command, same_set
 from reconciler.core.planning.model import app_folder
+from reconciler.report.exposure import exposed
 from schemas.report import (
     CatalogRow,
     Checkout,
@@ -65,6 +66,7 @@ def build(seen: Seen, *, plan: Plan | str | None = None,
         cutover=record.cutover, serial=record.serial, lineage=record.lineage,
         agent=seen.agent, override=seen.override, deferred=_deferral(last),
         plan=_plan(plan), gates=gates,
+        exposed=[] if seen.files is None else exposed(seen.files),
     )
 
 

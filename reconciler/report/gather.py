@@ -1,7 +1,8 @@
 """What the status report is built from, read once: the state record, each installed
 app's unit as its manager answers, the catalogs and app files as committed, the agent's
-status, a local override, and whether an apply in progress still lives (a deferral is
-the record's last apply, reconciler/report/build.py).
+status, a local override, whether an apply in progress still lives (a deferral is the
+record's last apply, reconciler/report/build.py), and the mode and owner of lpam's files
+(reconciler/report/exposure.py names them).
 
 All of the report's reading is here, so that reconciler/report/build.py decides from
 values alone. The catalog and the app files (`service`, `description`…) are read from the
@@ -18,6 +19,7 @@ when something is wrong.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +29,7 @@ from reconciler.base.errors import ConfigError, GitError, LpamError, StoreDamage
 from reconciler.base.layout import Layout
 from reconciler.core.documents import parse_catalog
 from reconciler.engine.records.state import read_agent_status, read_override, read_record
+from reconciler.report.exposure import Files, Found, watched
 from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
 from schemas.report import Unreadable
 
@@ -76,6 +79,7 @@ class Seen:
     override: LocalOverride | Unreadable | None = None
     adopt: Mapping[str, str] = field(default_factory=dict)  # desired app -> LPAM's app
     decided: bool = True  # whether what an apply does with each app LPAM installed is known
+    files: Files | None = None  # lpam's files' modes and owners; None: not read
 
 
 def gather(layout: Layout, *, store: Objects | None = None,
@@ -98,7 +102,8 @@ def gather(layout: Layout, *, store: Objects | None = None,
     adopt, decided = taken_over(layout, record)
     return Seen(record=record, listings=found, lives=lives,
                 manager=manager, alive=_alive(layout, record), agent=_agent(layout),
-                override=_override(layout), adopt=adopt, decided=decided)
+                override=_override(layout), adopt=adopt, decided=decided,
+                files=files(layout, record))
 
 
 def taken_over(layout: Layout, record: StateRecord) -> tuple[dict[str, str], bool]:
@@ -203,6 +208,41 @@ def _alive(layout: Layout, record: StateRecord) -> bool:
 
     note = holder(layout)
     return note is not None and alive(last.pid) and Holding.of(note).pid in (None, last.pid)
+
+
+def files(layout: Layout, record: StateRecord) -> Files:
+    """The mode and owner of each path exposure.watched names: one stat each. A path that
+    does not exist is left out (there is nothing to change yet, and its directory is
+    checked), and so is one this user may not stat."""
+    found = []
+    for item in watched(layout, record):
+        try:
+            info = os.stat(item.path)
+        except OSError:
+            continue
+        found.append(Found(item.path, item.what, info.st_mode, info.st_uid, info.st_gid))
+    user = os.geteuid()
+    return Files(found=tuple(found), user=user,
+                 users={uid: _user(uid) for uid in {user, *(f.uid for f in found)}},
+                 groups={gid: _group(gid) for gid in {f.gid for f in found}})
+
+
+def _user(uid: int) -> str | None:
+    import pwd
+
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return None
+
+
+def _group(gid: int) -> str | None:
+    import grp
+
+    try:
+        return grp.getgrgid(gid).gr_name
+    except KeyError:
+        return None
 
 
 def _override(layout: Layout) -> LocalOverride | Unreadable | None:

@@ -1,7 +1,8 @@
 """`lpam status`'s table: the old tool's `-d` columns, a row per app of every recorded
 repository, and under it the lines a person needs (each installed app's unit, the holds
-and how each ends, the last apply, what a cut-off apply owes the car) — rendered from the
-status report alone (schemas/report.py).
+and how each ends, the last apply, what a cut-off apply owes the car, and first any of
+lpam's files another user may change) — rendered from the status report alone
+(schemas/report.py).
 
 A car with one app shows exactly what it showed before several apps; with several, a
 line per installed app. What a repository holds is shown, so it is not trusted: the
@@ -30,7 +31,8 @@ def cell(value: object) -> str:
 
 
 def render(report: StatusReport) -> str:
-    lines = [_stray(s) for s in report.strays]
+    lines = [printable(f"Unsafe: {e.said}.") for e in report.exposed]  # first: most urgent
+    lines += [_stray(s) for s in report.strays]
     lines += [f"Repository {cell(r.repository)}: its copy in the store is damaged: "
               f"{printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
               "anew." for r in report.apps if r.damage is not None]

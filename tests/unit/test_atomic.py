@@ -62,3 +62,16 @@ def test_a_failed_write_leaves_the_old_file_and_no_temp_file(
         atomic.write_atomic(target, "new\n")
     assert target.read_text() == "old\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["state.json"]
+
+
+@pytest.mark.parametrize(("asked", "written"), [(0o666, 0o644), (0o775, 0o755),
+                                                  (0o600, 0o600)])
+def test_what_lpam_writes_no_other_user_may_write_whatever_mode_it_keeps(
+    tmp_path: Path, asked: int, written: int
+) -> None:
+    """An edit keeps the mode of the file it replaces (workflow/editing.py): a desired
+    state someone made world-writable comes back writable by its owner alone, and one its
+    owner made private stays private."""
+    target = tmp_path / "desired-state.yaml"
+    atomic.write_atomic(target, "version: 1\n", mode=asked)
+    assert target.stat().st_mode & 0o777 == written
