@@ -14,6 +14,16 @@ that has forgotten every registration, as `systemctl restart bluetooth` would.
 `pause` makes it a busy bluetoothd: it takes that long before reading a registration's
 objects back, and again between taking the registration and answering, so that a test can
 stop lpam inside either window.
+
+Phones and bonding (the block "Devices" below): bluetoothd knows each phone as a device
+object under the adapter. A write to a characteristic whose flags ask for encryption
+(`encrypt-write`, …) from a phone whose link is not encrypted — one that has not paired
+— never reaches the application: bluetoothd's ATT server answers "Insufficient
+Encryption" (src/shared/gatt-server.c `check_permissions`), which BlueZ's own GATT client
+relays as `org.bluez.Error.NotPermitted` "Not paired" (src/gatt-client.c
+`create_gatt_dbus_error`); the double raises that as the phone's PhoneError and records
+the refusal. Just Works pairing (the Pi has no screen) never authenticates the link, so
+the `encrypt-authenticated-*` and `secure-*` flags refuse even a bonded phone.
 """
 
 from __future__ import annotations
@@ -51,6 +61,12 @@ class PhoneError(Exception):
     """bluetoothd relayed an error reply to the phone: its D-Bus error name."""
 
 
+NOT_PAIRED = "org.bluez.Error.NotPermitted"
+"""What a BlueZ client hears for ATT's Insufficient Encryption/Authentication: "Not paired"."""
+ENCRYPTED_WRITES = {"encrypt-write", "encrypt-authenticated-write", "secure-write"}
+AUTHENTICATED_WRITES = {"encrypt-authenticated-write", "secure-write"}
+
+
 @dataclass
 class Registration:
     """What the double learnt from a registration: who, where, and what it read back."""
@@ -58,6 +74,7 @@ class Registration:
     sender: str
     path: str
     objects: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
+    raw: Any = None  # the objects as they came, Variants and all (marshalled again: bytes)
 
 
 def plain(value: Any) -> Any:
@@ -84,6 +101,8 @@ class BluezDouble:
         self.advertisement: Registration | None = None
         self.events: list[tuple[str, str]] = []  # (method, object path) of every call
         self.notifications: dict[str, list[bytes]] = {}
+        self.devices: dict[str, Device] = {}  # path -> the phone bluetoothd knows
+        self.refused: list[tuple[str, str]] = []  # (uuid, device) of writes it refused
         self._tasks: set[asyncio.Future[Any]] = set()
 
     async def start(self) -> None:
@@ -147,6 +166,15 @@ class BluezDouble:
         return bytes(reply.body[0])
 
     async def write(self, uuid: str, value: bytes, device: str) -> None:
+        """The phone `device` writes `value`; refused here, as bluetoothd's ATT server
+        refuses it, when the characteristic asks for a link this phone does not have."""
+        assert self.app is not None
+        flags = set(self.app.objects[self.path_of(uuid)][CHARACTERISTIC]["Flags"])
+        known = self.devices.get(device)
+        encrypted = known is not None and known.paired
+        if (flags & ENCRYPTED_WRITES and not encrypted) or flags & AUTHENTICATED_WRITES:
+            self.refused.append((uuid, device))
+            raise PhoneError(NOT_PAIRED)
         options = {"device": Variant("o", device), "type": Variant("s", "request")}
         await self._app_call(self.path_of(uuid), CHARACTERISTIC, "WriteValue", "aya{sv}",
                              [value, options])
@@ -232,7 +260,7 @@ class BluezDouble:
         fault = tree_fault(objects)
         if fault is not None:  # bluetoothd logs the reason and fails the registration
             return Message.new_error(msg, "org.bluez.Error.Failed", fault)
-        self.app = Registration(str(msg.sender), msg.body[0], objects)
+        self.app = Registration(str(msg.sender), msg.body[0], objects, answer.body[0])
         return Message.new_method_return(msg)
 
     async def _register_advertisement(self, msg: Message) -> Message:
@@ -263,6 +291,38 @@ class BluezDouble:
         props = self.app.objects.get(str(msg.path), {}).get(CHARACTERISTIC)
         if value is not None and props is not None:
             self.notifications.setdefault(props["UUID"], []).append(bytes(value.value))
+
+
+# Devices ------------------------------------------------------------------------------
+# The phones bluetoothd knows, as device objects under the adapter (doc/org.bluez.Device.rst).
+
+
+@dataclass
+class Device:
+    """A phone as bluetoothd's Device1 shows it. Paired: the link is encrypted with keys
+    from a pairing; Bonded: the keys are stored (a phone pairing with the car bonds)."""
+
+    address: str
+    name: str | None = None
+    paired: bool = False
+    bonded: bool = False
+
+
+def device_path(adapter: str, address: str) -> str:
+    """`/org/bluez/hci0/dev_AA_BB_…`, as bluetoothd names a device object."""
+    return f"{adapter}/dev_{address.upper().replace(':', '_')}"
+
+
+def address_of(path: str) -> str:
+    """The Bluetooth address of a device path (`dev_AA_BB_…` → `AA:BB:…`)."""
+    return path.rsplit("/dev_", 1)[-1].replace("_", ":")
+
+
+def bond(double: BluezDouble, path: str, name: str | None = None) -> Device:
+    """Make the phone at `path` one that has paired and bonded with the car before."""
+    device = double.devices.setdefault(path, Device(address_of(path), name))
+    device.paired = device.bonded = True
+    return device
 
 
 def tree_fault(objects: dict[str, dict[str, dict[str, Any]]]) -> str | None:

@@ -35,6 +35,7 @@ from dbus_fast.aio import MessageBus
 from reconciler.adapters.bluez.objects import GattHandler, Objects
 from reconciler.adapters.bluez.shape import Characteristic
 from reconciler.adapters.bluez.tree import ADVERTISEMENT, ROOT
+from schemas.bluetooth import Writes
 
 BLUEZ = "org.bluez"
 GATT_MANAGER = "org.bluez.GattManager1"
@@ -64,15 +65,17 @@ class GattServer:
 
     def __init__(self, handler: GattHandler, *, bus_address: str | None = None,
                  adapter: str = "/org/bluez/hci0", log: Callable[[str], None] = print,
-                 bug: Callable[[], str] = lambda: "(no debug log)") -> None:
+                 bug: Callable[[], str] = lambda: "(no debug log)",
+                 writes: Writes = Writes.BONDED) -> None:
         """`log` writes a line of the service's log; `bug` records the traceback of a fault
-        of lpam's own (called inside the `except`) and says where it went."""
+        of lpam's own (called inside the `except`) and says where it went; `writes` who may
+        change the car (shape.py `flags_for`: bonded phones unless told otherwise)."""
         self._address = bus_address  # None: dbus-fast reads DBUS_SYSTEM_BUS_ADDRESS
         self._adapter = adapter
         self._log = log
         self._bug = bug
         self._objects = Objects(handler, log=log, released=self._advertisement_released,
-                                bug=bug)
+                                bug=bug, writes=writes)
         self._bus: MessageBus | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
