@@ -56,6 +56,8 @@ OPERATOR_ACTIONS = (
 )
 """schemas.operator.OperatorAction's values (spelled out for the same reason), each with
 its help."""
+BLE_WRITES = ("bonded", "open")
+"""schemas.bluetooth.Writes's values (spelled out for the same reason)."""
 
 
 def _at_least_one(text: str) -> int:
@@ -94,6 +96,10 @@ OPTIONS: dict[str, Option] = {
         "still closed: exit 75, deferred (default 0)"}),
     "force": (("--force",), {
         "action": "store_true", "help": "ignore the update gates (the vehicle may be moving)"}),
+    "writes": (("--writes",), {
+        "choices": BLE_WRITES, "default": "bonded",
+        "help": "who may change the car over Bluetooth: bonded phones only (default), or "
+        "open: any phone in range, as bluezone allowed (for a lab)"}),
 }
 """Every option more than one command takes, declared once. `--lock-timeout` defaults to
 None: each use case knows how long its lock waits (reconciler/workflow/defaults.py)."""
@@ -215,7 +221,7 @@ def _sync_agent(new: New) -> None:
                      help="the BlueZ adapter's object path (default: /org/bluez/hci0)")
     ble.add_argument("--bus", metavar="ADDRESS", help="the system D-Bus's address (default: "
                      "$DBUS_SYSTEM_BUS_ADDRESS, else the system's)")
-    _add(ble, "network-timeout", "services")
+    _add(ble, "writes", "network-timeout", "services")
 
 
 def _gates_install_bundle(new: New) -> None:
@@ -225,7 +231,7 @@ def _gates_install_bundle(new: New) -> None:
     _add(new("install-agent", "install the systemd units that run the agent on this car"),
          "config", "services")
     _add(new("install-ble", "install the systemd unit that runs `lpam ble` on this car "
-             "(it replaces bluezone's unit)"), "services")
+             "(it replaces bluezone's unit)"), "writes", "services")
 
     bundle = new("bundle", "offline bundles of the desired state and what it pins")
     bundle.add_argument("action", choices=("create",))
@@ -589,15 +595,18 @@ def cmd_ble(args: argparse.Namespace, layout: Layout) -> int:
     def log(line: str) -> None:
         print(printable(line), flush=True)
 
+    from schemas.bluetooth import Writes
+
     return serve(_machine(args, layout), bus_address=args.bus, adapter=args.adapter, log=log,
-                 bug=lambda: debug_log(layout), stopping=stopping)
+                 bug=lambda: debug_log(layout), stopping=stopping, writes=Writes(args.writes))
 
 
 def cmd_install_ble(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.agent import install_ble
 
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
-    for path in install_ble(_machine(args, layout), command, report=_terminal(args)):
+    for path in install_ble(_machine(args, layout), command, report=_terminal(args),
+                            writes=args.writes):
         print(f"Wrote {path}")
     print("The Bluetooth service answers the phone app (Privzone) as bluezone did; "
           "bluezone's own unit is stopped while it runs (Conflicts=).")

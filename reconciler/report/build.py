@@ -64,7 +64,7 @@ def build(seen: Seen, *, plan: Plan | str | None = None,
         strays=[_stray(s, seen) for s in record.strays],
         cutover=record.cutover, serial=record.serial, lineage=record.lineage,
         agent=seen.agent, override=seen.override, deferred=_deferral(last),
-        plan=_plan(plan), gates=gates,
+        plan=_plan(plan), gates=gates, bluetooth=seen.bluetooth,
     )
 
 
