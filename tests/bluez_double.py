@@ -103,6 +103,9 @@ class BluezDouble:
         self.notifications: dict[str, list[bytes]] = {}
         self.devices: dict[str, Device] = {}  # path -> the phone bluetoothd knows
         self.refused: list[tuple[str, str]] = []  # (uuid, device) of writes it refused
+        self.adapter_props: dict[str, Any] = dict(ADAPTER_DEFAULTS)
+        self.adapter_sets: list[tuple[float, str, Any]] = []  # (loop time, name, value)
+        self.agent: tuple[str, str, str] | None = None  # (sender, path, capability)
         self._tasks: set[asyncio.Future[Any]] = set()
 
     async def start(self) -> None:
@@ -212,6 +215,9 @@ class BluezDouble:
         if msg.message_type is not MessageType.METHOD_CALL:
             return None
         self.events.append((str(msg.member), str(msg.body[0]) if msg.body else ""))
+        answered = pairing_call(self, msg)
+        if answered is not None:
+            return answered
         if msg.path != self.adapter:
             return Message.new_error(msg, "org.freedesktop.DBus.Error.UnknownObject",
                                      f"no object {msg.path}")
@@ -321,6 +327,117 @@ def address_of(path: str) -> str:
 def bond(double: BluezDouble, path: str, name: str | None = None) -> Device:
     """Make the phone at `path` one that has paired and bonded with the car before."""
     device = double.devices.setdefault(path, Device(address_of(path), name))
+    device.paired = device.bonded = True
+    return device
+
+
+# The adapter's pairing side: its properties, the agent manager, the device objects and
+# RemoveDevice (doc/org.bluez.Adapter.rst, AgentManager.rst, Device.rst). The double keeps
+# what it is told: it runs none of bluetoothd's own timers (PairableTimeout…), so a test
+# sees whether lpam itself closes the pairing window.
+
+ADAPTER = "org.bluez.Adapter1"
+AGENT_MANAGER = "org.bluez.AgentManager1"
+AGENT = "org.bluez.Agent1"
+DEVICE = "org.bluez.Device1"
+ADAPTER_DEFAULTS: dict[str, Any] = {
+    "Address": "B8:27:EB:00:00:01", "Name": "raspberrypi", "Powered": True,
+    "Pairable": True, "PairableTimeout": 0, "Discoverable": False,
+    "DiscoverableTimeout": 180}  # BlueZ's defaults (Pairable true, 180 s discoverable)
+_SIGNATURES = {bool: "b", int: "u", str: "s"}
+NOT_PAIRABLE = "SMP Pairing Not Supported"
+"""What a phone's pairing meets when the adapter is not pairable (the kernel's answer to
+a pairing that asks to bond while the adapter is not bondable)."""
+
+
+def pairing_call(double: BluezDouble, msg: Message) -> Message | None:
+    """The reply to a call on the adapter's properties, the agent manager, a device or
+    the object manager; None for every other call (the GATT managers')."""
+    call, path = (msg.interface, msg.member), str(msg.path)
+    adapter = path == double.adapter
+    if call == (PROPERTIES, "Set") and adapter and msg.body[0] == ADAPTER:
+        name, value = str(msg.body[1]), msg.body[2].value
+        if name not in double.adapter_props or name in ("Address", "Name"):
+            return Message.new_error(msg, "org.bluez.Error.InvalidArguments", name)
+        double.adapter_props[name] = value
+        double.adapter_sets.append((asyncio.get_running_loop().time(), name, value))
+        return Message.new_method_return(msg)
+    if call[0] == PROPERTIES and call[1] in ("Get", "GetAll"):
+        props = (_variants(double.adapter_props) if adapter and msg.body[0] == ADAPTER
+                 else _device_props(double, path) if msg.body[0] == DEVICE else None)
+        if props is None or (call[1] == "Get" and msg.body[1] not in props):
+            return Message.new_error(msg, "org.bluez.Error.InvalidArguments", path)
+        if call[1] == "GetAll":
+            return Message.new_method_return(msg, "a{sv}", [props])
+        return Message.new_method_return(msg, "v", [props[msg.body[1]]])
+    if call == ("org.freedesktop.DBus.ObjectManager", "GetManagedObjects") and path == "/":
+        objects = {double.adapter: {ADAPTER: _variants(double.adapter_props)}}
+        for device in double.devices:
+            objects[device] = {DEVICE: _device_props(double, device) or {}}
+        return Message.new_method_return(msg, "a{oa{sa{sv}}}", [objects])
+    if call == (ADAPTER, "RemoveDevice") and adapter:
+        if double.devices.pop(str(msg.body[0]), None) is None:
+            return Message.new_error(msg, "org.bluez.Error.DoesNotExist", "Does Not Exist")
+        return Message.new_method_return(msg)
+    if call[0] == AGENT_MANAGER and path == "/org/bluez":
+        return _agent_manager(double, msg)
+    return None
+
+
+def _agent_manager(double: BluezDouble, msg: Message) -> Message:
+    held = double.agent
+    if msg.member == "RegisterAgent":
+        if held is not None and held[:2] == (msg.sender, msg.body[0]):
+            return Message.new_error(msg, "org.bluez.Error.AlreadyExists", "Already Exists")
+        double.agent = (str(msg.sender), str(msg.body[0]), str(msg.body[1]))
+    elif msg.member in ("RequestDefaultAgent", "UnregisterAgent"):
+        if held is None or held[:2] != (msg.sender, msg.body[0]):
+            return Message.new_error(msg, "org.bluez.Error.DoesNotExist", "Does Not Exist")
+        if msg.member == "UnregisterAgent":
+            double.agent = None
+    else:
+        return Message.new_error(msg, "org.freedesktop.DBus.Error.UnknownMethod",
+                                 str(msg.member))
+    return Message.new_method_return(msg)
+
+
+def _variants(props: dict[str, Any]) -> dict[str, Variant]:
+    return {k: Variant(_SIGNATURES[type(v)], v) for k, v in props.items()}
+
+
+def _device_props(double: BluezDouble, path: str) -> dict[str, Variant] | None:
+    device = double.devices.get(path)
+    if device is None:
+        return None
+    props = {"Address": Variant("s", device.address), "Adapter": Variant("o", double.adapter),
+             "Paired": Variant("b", device.paired), "Bonded": Variant("b", device.bonded)}
+    if device.name is not None:
+        props["Name"] = Variant("s", device.name)
+    return props
+
+
+async def pair_phone(double: BluezDouble, address: str, name: str | None = None, *,
+                     method: str = "RequestConfirmation") -> Device:
+    """A phone asks to pair, as bluetoothd relays it to the default agent (`method`:
+    RequestConfirmation or RequestAuthorization, as the phone's capabilities make it);
+    bonded when the agent accepts. PhoneError when the adapter is not pairable or the
+    agent refuses."""
+    assert double.bus is not None
+    if not double.adapter_props["Pairable"]:
+        raise PhoneError(NOT_PAIRABLE)
+    if double.agent is None:
+        raise PhoneError("org.bluez.Error.AuthenticationFailed")
+    path = device_path(double.adapter, address)
+    device = double.devices.setdefault(path, Device(address.upper(), name))
+    sender, agent, _ = double.agent
+    signature, body = ("ou", [path, 123456]) if method == "RequestConfirmation" else \
+        ("o", [path])
+    reply = await asyncio.wait_for(double.bus.call(Message(
+        destination=sender, path=agent, interface=AGENT, member=method,
+        signature=signature, body=body)), WAIT)
+    assert reply is not None
+    if reply.message_type is MessageType.ERROR:
+        raise PhoneError(reply.error_name)
     device.paired = device.bonded = True
     return device
 

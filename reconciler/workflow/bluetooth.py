@@ -10,13 +10,18 @@ default: bonded phones only) and, on a car, written into `lpam-ble.service` by
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 from reconciler.base.layout import Layout
 from reconciler.engine.records.bluetooth import clear_service, record_service
 from schemas.bluetooth import BleService, Writes
+
+if TYPE_CHECKING:
+    from reconciler.adapters.bluez.pairing import Phone
 
 
 @contextlib.contextmanager
@@ -38,3 +43,30 @@ def said(writes: Writes) -> str:
                 "apps, as with bluezone")
     return ("only a bonded phone may change the car's apps; `lpam ble pair` opens a "
             "pairing window")
+
+
+def pair(*, bus_address: str | None, adapter: str, seconds: int,
+         stopped: Callable[[], bool], opened: Callable[[], None],
+         paired: Callable[[str], None]) -> None:
+    """`lpam ble pair`: the adapter pairable and discoverable for `seconds` (or until
+    `stopped()`), with an agent that accepts each pairing (adapters/bluez/pairing.py);
+    `opened` is told once the window is open, `paired` each phone that paired in it."""
+    from reconciler.adapters.bluez.pairing import window
+
+    asyncio.run(window(bus_address=bus_address, adapter=adapter, seconds=seconds,
+                       stopped=stopped, opened=opened, paired=paired))
+
+
+def bonded_phones(*, bus_address: str | None, adapter: str) -> list[Phone]:
+    """`lpam ble phones`: the phones paired or bonded with the car, by address."""
+    from reconciler.adapters.bluez.pairing import phones
+
+    return asyncio.run(phones(bus_address=bus_address, adapter=adapter))
+
+
+def forget_phone(*, bus_address: str | None, adapter: str, address: str) -> Phone:
+    """`lpam ble forget ADDRESS`: the phone's bond removed; the phone that was."""
+    from reconciler.adapters.bluez.pairing import check_address, forget
+
+    wanted = check_address(address)  # before any bus: a typo is said as such
+    return asyncio.run(forget(bus_address=bus_address, adapter=adapter, address=wanted))

@@ -263,13 +263,7 @@ class GattServer:
                        body=[path, {}] if options else [path])
 
     def _explain(self, error: str) -> str:
-        name = error.split(":", 1)[0]
-        if name in (f"{DBUS}.Error.ServiceUnknown", f"{DBUS}.Error.NameHasNoOwner"):
-            return "bluetoothd is not running (nobody owns org.bluez on the system bus)"
-        if name in (f"{DBUS}.Error.UnknownObject", f"{DBUS}.Error.UnknownMethod",
-                    f"{DBUS}.Error.UnknownInterface"):
-            return f"bluetoothd has no adapter {self._adapter} (is the controller up?)"
-        return error
+        return explain(error, self._adapter)
 
     def _report(self, problem: str, *, retry: _Backoff | None = None) -> None:
         """Log `problem` once, until the reason changes; with `retry`, say when lpam
@@ -296,6 +290,17 @@ class _Backoff:
             return f"retrying every {MAX_DELAY:g} s; said again only when the reason changes"
         return (f"retrying in {self._delay:g} s, then at longer intervals up to "
                 f"{MAX_DELAY:g} s; said again only when the reason changes")
+
+
+def explain(error: str, adapter: str) -> str:
+    """A failed call on `adapter` (`error.name: text`) in the words a user acts on."""
+    name = error.split(":", 1)[0]
+    if name in (f"{DBUS}.Error.ServiceUnknown", f"{DBUS}.Error.NameHasNoOwner"):
+        return "bluetoothd is not running (nobody owns org.bluez on the system bus)"
+    if name in (f"{DBUS}.Error.UnknownObject", f"{DBUS}.Error.UnknownMethod",
+                f"{DBUS}.Error.UnknownInterface"):
+        return f"bluetoothd has no adapter {adapter} (is the controller up?)"
+    return error
 
 
 def _daemon_call(member: str, signature: str, body: list[Any]) -> Message:
