@@ -40,15 +40,16 @@ from typing import Any
 from dbus_fast import BusType, Message, MessageType, Variant
 from dbus_fast.aio import MessageBus
 
-from reconciler.adapters.bluez.server import BLUEZ, DBUS, explain
+from reconciler.adapters.bluez.server import ADAPTER_IFACE, BLUEZ, DBUS, explain
+from reconciler.adapters.bluez.tree import OBJECT_MANAGER_IFACE, PROPERTIES_IFACE
 from reconciler.base.errors import LpamError
 
-ADAPTER = "org.bluez.Adapter1"
+ADAPTER = ADAPTER_IFACE
 AGENT_MANAGER = "org.bluez.AgentManager1"
 AGENT = "org.bluez.Agent1"
 DEVICE = "org.bluez.Device1"
-PROPERTIES = "org.freedesktop.DBus.Properties"
-OBJECT_MANAGER = "org.freedesktop.DBus.ObjectManager"
+PROPERTIES = PROPERTIES_IFACE
+OBJECT_MANAGER = OBJECT_MANAGER_IFACE
 MANAGER_PATH = "/org/bluez"
 AGENT_PATH = "/org/lpam/agent"
 CAPABILITY = "NoInputNoOutput"
