@@ -16,6 +16,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.agent import AgentStatus
+from schemas.bluetooth import BleService
 from schemas.fleet import PublishedApp
 from schemas.override import LocalOverride
 from schemas.plan import Change
@@ -251,6 +252,9 @@ class StatusReport(_View):
     exposed: list[ExposedPath] = Field(default_factory=list, description="lpam's files "
                                        "and directories another user may change (empty: "
                                        "none)")
+    bluetooth: BleService | None = Field(
+        default=None, description="the running `lpam ble` and who may change the car through "
+        "it (bonded phones, or any); null when it does not run")
 
     def listed(self) -> list[CatalogRow]:
         """The rows that are apps, not notes about a repository (LPAM's `-d`, the phone)."""

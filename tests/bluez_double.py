@@ -14,6 +14,16 @@ that has forgotten every registration, as `systemctl restart bluetooth` would.
 `pause` makes it a busy bluetoothd: it takes that long before reading a registration's
 objects back, and again between taking the registration and answering, so that a test can
 stop lpam inside either window.
+
+Phones and bonding (the block "Devices" below): bluetoothd knows each phone as a device
+object under the adapter. A write to a characteristic whose flags ask for encryption
+(`encrypt-write`, …) from a phone whose link is not encrypted — one that has not paired
+— never reaches the application: bluetoothd's ATT server answers "Insufficient
+Encryption" (src/shared/gatt-server.c `check_permissions`), which BlueZ's own GATT client
+relays as `org.bluez.Error.NotPermitted` "Not paired" (src/gatt-client.c
+`create_gatt_dbus_error`); the double raises that as the phone's PhoneError and records
+the refusal. Just Works pairing (the Pi has no screen) never authenticates the link, so
+the `encrypt-authenticated-*` and `secure-*` flags refuse even a bonded phone.
 """
 
 from __future__ import annotations
@@ -51,6 +61,12 @@ class PhoneError(Exception):
     """bluetoothd relayed an error reply to the phone: its D-Bus error name."""
 
 
+NOT_PAIRED = "org.bluez.Error.NotPermitted"
+"""What a BlueZ client hears for ATT's Insufficient Encryption/Authentication: "Not paired"."""
+ENCRYPTED_WRITES = {"encrypt-write", "encrypt-authenticated-write", "secure-write"}
+AUTHENTICATED_WRITES = {"encrypt-authenticated-write", "secure-write"}
+
+
 @dataclass
 class Registration:
     """What the double learnt from a registration: who, where, and what it read back."""
@@ -58,6 +74,7 @@ class Registration:
     sender: str
     path: str
     objects: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
+    raw: Any = None  # the objects as they came, Variants and all (marshalled again: bytes)
 
 
 def plain(value: Any) -> Any:
@@ -84,6 +101,11 @@ class BluezDouble:
         self.advertisement: Registration | None = None
         self.events: list[tuple[str, str]] = []  # (method, object path) of every call
         self.notifications: dict[str, list[bytes]] = {}
+        self.devices: dict[str, Device] = {}  # path -> the phone bluetoothd knows
+        self.refused: list[tuple[str, str]] = []  # (uuid, device) of writes it refused
+        self.adapter_props: dict[str, Any] = dict(ADAPTER_DEFAULTS)
+        self.adapter_sets: list[tuple[float, str, Any]] = []  # (loop time, name, value)
+        self.agent: tuple[str, str, str] | None = None  # (sender, path, capability)
         self._tasks: set[asyncio.Future[Any]] = set()
 
     async def start(self) -> None:
@@ -147,6 +169,15 @@ class BluezDouble:
         return bytes(reply.body[0])
 
     async def write(self, uuid: str, value: bytes, device: str) -> None:
+        """The phone `device` writes `value`; refused here, as bluetoothd's ATT server
+        refuses it, when the characteristic asks for a link this phone does not have."""
+        assert self.app is not None
+        flags = set(self.app.objects[self.path_of(uuid)][CHARACTERISTIC]["Flags"])
+        known = self.devices.get(device)
+        encrypted = known is not None and known.paired
+        if (flags & ENCRYPTED_WRITES and not encrypted) or flags & AUTHENTICATED_WRITES:
+            self.refused.append((uuid, device))
+            raise PhoneError(NOT_PAIRED)
         options = {"device": Variant("o", device), "type": Variant("s", "request")}
         await self._app_call(self.path_of(uuid), CHARACTERISTIC, "WriteValue", "aya{sv}",
                              [value, options])
@@ -184,6 +215,9 @@ class BluezDouble:
         if msg.message_type is not MessageType.METHOD_CALL:
             return None
         self.events.append((str(msg.member), str(msg.body[0]) if msg.body else ""))
+        answered = pairing_call(self, msg)
+        if answered is not None:
+            return answered
         if msg.path != self.adapter:
             return Message.new_error(msg, "org.freedesktop.DBus.Error.UnknownObject",
                                      f"no object {msg.path}")
@@ -232,7 +266,7 @@ class BluezDouble:
         fault = tree_fault(objects)
         if fault is not None:  # bluetoothd logs the reason and fails the registration
             return Message.new_error(msg, "org.bluez.Error.Failed", fault)
-        self.app = Registration(str(msg.sender), msg.body[0], objects)
+        self.app = Registration(str(msg.sender), msg.body[0], objects, answer.body[0])
         return Message.new_method_return(msg)
 
     async def _register_advertisement(self, msg: Message) -> Message:
@@ -263,6 +297,149 @@ class BluezDouble:
         props = self.app.objects.get(str(msg.path), {}).get(CHARACTERISTIC)
         if value is not None and props is not None:
             self.notifications.setdefault(props["UUID"], []).append(bytes(value.value))
+
+
+# Devices ------------------------------------------------------------------------------
+# The phones bluetoothd knows, as device objects under the adapter (doc/org.bluez.Device.rst).
+
+
+@dataclass
+class Device:
+    """A phone as bluetoothd's Device1 shows it. Paired: the link is encrypted with keys
+    from a pairing; Bonded: the keys are stored (a phone pairing with the car bonds)."""
+
+    address: str
+    name: str | None = None
+    paired: bool = False
+    bonded: bool = False
+
+
+def device_path(adapter: str, address: str) -> str:
+    """`/org/bluez/hci0/dev_AA_BB_…`, as bluetoothd names a device object."""
+    return f"{adapter}/dev_{address.upper().replace(':', '_')}"
+
+
+def address_of(path: str) -> str:
+    """The Bluetooth address of a device path (`dev_AA_BB_…` → `AA:BB:…`)."""
+    return path.rsplit("/dev_", 1)[-1].replace("_", ":")
+
+
+def bond(double: BluezDouble, path: str, name: str | None = None) -> Device:
+    """Make the phone at `path` one that has paired and bonded with the car before."""
+    device = double.devices.setdefault(path, Device(address_of(path), name))
+    device.paired = device.bonded = True
+    return device
+
+
+# The adapter's pairing side: its properties, the agent manager, the device objects and
+# RemoveDevice (doc/org.bluez.Adapter.rst, AgentManager.rst, Device.rst). The double keeps
+# what it is told: it runs none of bluetoothd's own timers (PairableTimeout…), so a test
+# sees whether lpam itself closes the pairing window.
+
+ADAPTER = "org.bluez.Adapter1"
+AGENT_MANAGER = "org.bluez.AgentManager1"
+AGENT = "org.bluez.Agent1"
+DEVICE = "org.bluez.Device1"
+ADAPTER_DEFAULTS: dict[str, Any] = {
+    "Address": "B8:27:EB:00:00:01", "Name": "raspberrypi", "Powered": True,
+    "Pairable": True, "PairableTimeout": 0, "Discoverable": False,
+    "DiscoverableTimeout": 180}  # BlueZ's defaults (Pairable true, 180 s discoverable)
+_SIGNATURES = {bool: "b", int: "u", str: "s"}
+NOT_PAIRABLE = "SMP Pairing Not Supported"
+"""What a phone's pairing meets when the adapter is not pairable (the kernel's answer to
+a pairing that asks to bond while the adapter is not bondable)."""
+
+
+def pairing_call(double: BluezDouble, msg: Message) -> Message | None:
+    """The reply to a call on the adapter's properties, the agent manager, a device or
+    the object manager; None for every other call (the GATT managers')."""
+    call, path = (msg.interface, msg.member), str(msg.path)
+    adapter = path == double.adapter
+    if call == (PROPERTIES, "Set") and adapter and msg.body[0] == ADAPTER:
+        name, value = str(msg.body[1]), msg.body[2].value
+        if name not in double.adapter_props or name in ("Address", "Name"):
+            return Message.new_error(msg, "org.bluez.Error.InvalidArguments", name)
+        double.adapter_props[name] = value
+        double.adapter_sets.append((asyncio.get_running_loop().time(), name, value))
+        return Message.new_method_return(msg)
+    if call[0] == PROPERTIES and call[1] in ("Get", "GetAll"):
+        props = (_variants(double.adapter_props) if adapter and msg.body[0] == ADAPTER
+                 else _device_props(double, path) if msg.body[0] == DEVICE else None)
+        if props is None or (call[1] == "Get" and msg.body[1] not in props):
+            return Message.new_error(msg, "org.bluez.Error.InvalidArguments", path)
+        if call[1] == "GetAll":
+            return Message.new_method_return(msg, "a{sv}", [props])
+        return Message.new_method_return(msg, "v", [props[msg.body[1]]])
+    if call == ("org.freedesktop.DBus.ObjectManager", "GetManagedObjects") and path == "/":
+        objects = {double.adapter: {ADAPTER: _variants(double.adapter_props)}}
+        for device in double.devices:
+            objects[device] = {DEVICE: _device_props(double, device) or {}}
+        return Message.new_method_return(msg, "a{oa{sa{sv}}}", [objects])
+    if call == (ADAPTER, "RemoveDevice") and adapter:
+        if double.devices.pop(str(msg.body[0]), None) is None:
+            return Message.new_error(msg, "org.bluez.Error.DoesNotExist", "Does Not Exist")
+        return Message.new_method_return(msg)
+    if call[0] == AGENT_MANAGER and path == "/org/bluez":
+        return _agent_manager(double, msg)
+    return None
+
+
+def _agent_manager(double: BluezDouble, msg: Message) -> Message:
+    held = double.agent
+    if msg.member == "RegisterAgent":
+        if held is not None and held[:2] == (msg.sender, msg.body[0]):
+            return Message.new_error(msg, "org.bluez.Error.AlreadyExists", "Already Exists")
+        double.agent = (str(msg.sender), str(msg.body[0]), str(msg.body[1]))
+    elif msg.member in ("RequestDefaultAgent", "UnregisterAgent"):
+        if held is None or held[:2] != (msg.sender, msg.body[0]):
+            return Message.new_error(msg, "org.bluez.Error.DoesNotExist", "Does Not Exist")
+        if msg.member == "UnregisterAgent":
+            double.agent = None
+    else:
+        return Message.new_error(msg, "org.freedesktop.DBus.Error.UnknownMethod",
+                                 str(msg.member))
+    return Message.new_method_return(msg)
+
+
+def _variants(props: dict[str, Any]) -> dict[str, Variant]:
+    return {k: Variant(_SIGNATURES[type(v)], v) for k, v in props.items()}
+
+
+def _device_props(double: BluezDouble, path: str) -> dict[str, Variant] | None:
+    device = double.devices.get(path)
+    if device is None:
+        return None
+    props = {"Address": Variant("s", device.address), "Adapter": Variant("o", double.adapter),
+             "Paired": Variant("b", device.paired), "Bonded": Variant("b", device.bonded)}
+    if device.name is not None:
+        props["Name"] = Variant("s", device.name)
+    return props
+
+
+async def pair_phone(double: BluezDouble, address: str, name: str | None = None, *,
+                     method: str = "RequestConfirmation") -> Device:
+    """A phone asks to pair, as bluetoothd relays it to the default agent (`method`:
+    RequestConfirmation or RequestAuthorization, as the phone's capabilities make it);
+    bonded when the agent accepts. PhoneError when the adapter is not pairable or the
+    agent refuses."""
+    assert double.bus is not None
+    if not double.adapter_props["Pairable"]:
+        raise PhoneError(NOT_PAIRABLE)
+    if double.agent is None:
+        raise PhoneError("org.bluez.Error.AuthenticationFailed")
+    path = device_path(double.adapter, address)
+    device = double.devices.setdefault(path, Device(address.upper(), name))
+    sender, agent, _ = double.agent
+    signature, body = ("ou", [path, 123456]) if method == "RequestConfirmation" else \
+        ("o", [path])
+    reply = await asyncio.wait_for(double.bus.call(Message(
+        destination=sender, path=agent, interface=AGENT, member=method,
+        signature=signature, body=body)), WAIT)
+    assert reply is not None
+    if reply.message_type is MessageType.ERROR:
+        raise PhoneError(reply.error_name)
+    device.paired = device.bonded = True
+    return device
 
 
 def tree_fault(objects: dict[str, dict[str, dict[str, Any]]]) -> str | None:

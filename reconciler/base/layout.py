@@ -94,6 +94,11 @@ class Layout:
         return self.root / "run" / "lpam"
 
     @property
+    def ble_service(self) -> Path:
+        """What the running `lpam ble` says of itself: its write mode (schemas/bluetooth.py)."""
+        return self.run_dir / "ble.json"
+
+    @property
     def supervisor_dir(self) -> Path:
         """The configuration of the supervisord lpam starts for this root."""
         return self.etc / "supervisor"

@@ -57,6 +57,10 @@ OPERATOR_ACTIONS = (
 )
 """schemas.operator.OperatorAction's values (spelled out for the same reason), each with
 its help."""
+BLE_WRITES = ("bonded", "open")
+"""schemas.bluetooth.Writes's values (spelled out for the same reason)."""
+MAX_WINDOW = 3600
+"""The longest pairing window `lpam ble pair --seconds` opens: a window is short."""
 
 
 def _at_least_one(text: str) -> int:
@@ -95,6 +99,10 @@ OPTIONS: dict[str, Option] = {
         "still closed: exit 75, deferred (default 0)"}),
     "force": (("--force",), {
         "action": "store_true", "help": "ignore the update gates (the vehicle may be moving)"}),
+    "writes": (("--writes",), {
+        "choices": BLE_WRITES, "default": "bonded",
+        "help": "who may change the car over Bluetooth: bonded phones only (default), or "
+        "open: any phone in range, as bluezone allowed (for a lab)"}),
 }
 """Every option more than one command takes, declared once. `--lock-timeout` defaults to
 None: each use case knows how long its lock waits (reconciler/workflow/defaults.py)."""
@@ -212,11 +220,44 @@ def _sync_agent(new: New) -> None:
     _add(agent, "network-timeout", "services", "script-timeout", "lock-timeout")
 
     ble = new("ble", "serve the field's phone app (Privzone) over Bluetooth LE until stopped")
-    ble.add_argument("--adapter", default="/org/bluez/hci0",
-                     help="the BlueZ adapter's object path (default: /org/bluez/hci0)")
-    ble.add_argument("--bus", metavar="ADDRESS", help="the system D-Bus's address (default: "
-                     "$DBUS_SYSTEM_BUS_ADDRESS, else the system's)")
-    _add(ble, "network-timeout", "services")
+    _bluez_options(ble)
+    _add(ble, "writes", "network-timeout", "services")
+    _ble_actions(ble)
+
+
+def _bluez_options(parser: argparse.ArgumentParser, *, default: Any = None) -> None:
+    """`--adapter` and `--bus`: `lpam ble`'s, and again after its actions (`lpam ble pair
+    --bus X`), there with no default of their own (argparse would copy it over `lpam ble
+    --bus X pair`'s)."""
+    own = {} if default is None else {"default": default}
+    parser.add_argument("--adapter", **(own or {"default": "/org/bluez/hci0"}),
+                        help="the BlueZ adapter's object path (default: /org/bluez/hci0)")
+    parser.add_argument("--bus", metavar="ADDRESS", **own,
+                        help="the system D-Bus's address (default: $DBUS_SYSTEM_BUS_ADDRESS, "
+                        "else the system's)")
+
+
+def _window_seconds(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= MAX_WINDOW:
+        raise argparse.ArgumentTypeError(f"give 1 to {MAX_WINDOW} seconds")
+    return value
+
+
+def _ble_actions(ble: argparse.ArgumentParser) -> None:
+    """`lpam ble pair|phones|forget`: who may pair with the car (without one: serve)."""
+    actions = ble.add_subparsers(dest="ble_action", metavar="ACTION")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--root", default=argparse.SUPPRESS, help="as `lpam --root`")
+    _bluez_options(common, default=argparse.SUPPRESS)
+    pair = actions.add_parser("pair", parents=[common], help="let a phone pair with the car "
+                              "for a while: its writes are accepted from then on")
+    pair.add_argument("--seconds", type=_window_seconds, default=120,
+                      help="how long the car is pairable and discoverable (default 120)")
+    actions.add_parser("phones", parents=[common], help="the phones bonded with the car")
+    forget = actions.add_parser("forget", parents=[common],
+                                help="remove a bonded phone: its writes are refused again")
+    forget.add_argument("address", metavar="ADDRESS", help="as `lpam ble phones` lists it")
 
 
 def _gates_install_bundle(new: New) -> None:
@@ -226,7 +267,7 @@ def _gates_install_bundle(new: New) -> None:
     _add(new("install-agent", "install the systemd units that run the agent on this car"),
          "config", "services")
     _add(new("install-ble", "install the systemd unit that runs `lpam ble` on this car "
-             "(it replaces bluezone's unit)"), "services")
+             "(it replaces bluezone's unit)"), "writes", "services")
 
     bundle = new("bundle", "offline bundles of the desired state and what it pins")
     bundle.add_argument("action", choices=("create",))
@@ -583,6 +624,8 @@ def cmd_agent(args: argparse.Namespace, layout: Layout) -> int:
 def cmd_ble(args: argparse.Namespace, layout: Layout) -> int:
     """Logs to stdout, a line each (systemd's journal adds the time); 0 when stopped,
     also by a stop that comes while the service still imports (kept until it runs)."""
+    if args.ble_action is not None:
+        return BLE_ACTIONS[args.ble_action](args)
     stopping = threading.Event()
     for number in (signal.SIGTERM, signal.SIGINT):
         signal.signal(number, lambda signum, frame: stopping.set())
@@ -591,15 +634,70 @@ def cmd_ble(args: argparse.Namespace, layout: Layout) -> int:
     def log(line: str) -> None:
         print(printable(line), flush=True)
 
+    from schemas.bluetooth import Writes
+
     return serve(_machine(args, layout), bus_address=args.bus, adapter=args.adapter, log=log,
-                 bug=lambda: debug_log(layout), stopping=stopping)
+                 bug=lambda: debug_log(layout), stopping=stopping, writes=Writes(args.writes))
+
+
+def cmd_ble_pair(args: argparse.Namespace) -> int:
+    """The window stays open `--seconds`; Ctrl-C or SIGTERM closes it early, as the timer
+    does (exit 0: the person at the car ended it)."""
+    from reconciler.workflow.bluetooth import pair
+
+    stopping = threading.Event()
+    for number in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(number, lambda signum, frame: stopping.set())
+    phones: list[str] = []
+
+    def opened() -> None:
+        print(f"The car is pairable for {args.seconds} s ({args.adapter}): on the phone, "
+              "open Privzone, choose CIRCLES and accept the pairing prompt. Ctrl-C closes "
+              "the window early.", flush=True)
+
+    def paired(phone: str) -> None:
+        phones.append(phone)
+        print(f"Paired: {printable(phone)}", flush=True)
+
+    pair(bus_address=args.bus, adapter=args.adapter, seconds=args.seconds,
+         stopped=stopping.is_set, opened=opened, paired=paired)
+    print(f"Pairing window closed{' early' if stopping.is_set() else ''}: the car is not "
+          f"pairable; {counted(len(phones), 'phone')} paired in it.")
+    return EXIT_OK
+
+
+def cmd_ble_phones(args: argparse.Namespace) -> int:
+    from reconciler.workflow.bluetooth import bonded_phones
+
+    found = bonded_phones(bus_address=args.bus, adapter=args.adapter)
+    if not found:
+        print(f"No phone is bonded with {args.adapter}: `lpam ble pair` lets one pair.")
+        return EXIT_OK
+    print("\n".join(columns(("Address", "Name", "Bonded"), [
+        [p.address, printable(p.name or "-"), "yes" if p.bonded else "no (paired only)"]
+        for p in found])))
+    return EXIT_OK
+
+
+def cmd_ble_forget(args: argparse.Namespace) -> int:
+    from reconciler.workflow.bluetooth import forget_phone
+
+    gone = forget_phone(bus_address=args.bus, adapter=args.adapter, address=args.address)
+    name = f" ({printable(gone.name)})" if gone.name else ""
+    print(f"Forgot {gone.address}{name}: its writes are refused until it pairs again.")
+    return EXIT_OK
+
+
+BLE_ACTIONS: dict[str, Callable[[argparse.Namespace], int]] = {
+    "pair": cmd_ble_pair, "phones": cmd_ble_phones, "forget": cmd_ble_forget}
 
 
 def cmd_install_ble(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow.agent import install_ble
 
     command = [sys.executable, "-m", "reconciler", "--root", str(layout.root)]
-    for path in install_ble(_machine(args, layout), command, report=_terminal(args)):
+    for path in install_ble(_machine(args, layout), command, report=_terminal(args),
+                            writes=args.writes):
         print(f"Wrote {path}")
     print("The Bluetooth service answers the phone app (Privzone) as bluezone did; "
           "bluezone's own unit is stopped while it runs (Conflicts=).")

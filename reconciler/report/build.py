@@ -67,6 +67,7 @@ def build(seen: Seen, *, plan: Plan | str | None = None,
         agent=seen.agent, override=seen.override, deferred=_deferral(last),
         plan=_plan(plan), gates=gates,
         exposed=[] if seen.files is None else exposed(seen.files),
+        bluetooth=seen.bluetooth,
     )
 
 

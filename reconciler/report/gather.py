@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Protocol
 from reconciler.base.errors import ConfigError, GitError, LpamError, StoreDamagedError
 from reconciler.base.layout import Layout
 from reconciler.core.documents import parse_catalog
+from reconciler.engine.records.bluetooth import read_service
 from reconciler.engine.records.state import read_agent_status, read_override, read_record
 from reconciler.report.exposure import Files, Found, watched
 from schemas.catalog import CATALOG_FILE, CatalogApp, with_folder_files
@@ -36,6 +37,7 @@ from schemas.report import Unreadable
 if TYPE_CHECKING:
     from reconciler.base.unit import UnitState
     from schemas.agent import AgentStatus
+    from schemas.bluetooth import BleService
     from schemas.override import LocalOverride
     from schemas.record import RepositoryRecord, StateRecord
 
@@ -80,6 +82,7 @@ class Seen:
     adopt: Mapping[str, str] = field(default_factory=dict)  # desired app -> LPAM's app
     decided: bool = True  # whether what an apply does with each app LPAM installed is known
     files: Files | None = None  # lpam's files' modes and owners; None: not read
+    bluetooth: BleService | None = None  # the running `lpam ble`: who may change the car
 
 
 def gather(layout: Layout, *, store: Objects | None = None,
@@ -103,7 +106,7 @@ def gather(layout: Layout, *, store: Objects | None = None,
     return Seen(record=record, listings=found, lives=lives,
                 manager=manager, alive=_alive(layout, record), agent=_agent(layout),
                 override=_override(layout), adopt=adopt, decided=decided,
-                files=files(layout, record))
+                files=files(layout, record), bluetooth=read_service(layout))
 
 
 def taken_over(layout: Layout, record: StateRecord) -> tuple[dict[str, str], bool]:

@@ -13,6 +13,7 @@ to the operator's terminal) and cuts each cell at 80 characters (`--json` has it
 from __future__ import annotations
 
 from reconciler.base.text import columns, printable
+from schemas.bluetooth import Writes
 from schemas.report import InstalledApp, StatusReport, StrayView, UnitView, Unreadable
 
 COLUMNS = ("repository", "ref", "commit", "app", "service", "installed", "running", "status",
@@ -36,7 +37,7 @@ def render(report: StatusReport) -> str:
     lines += [f"Repository {cell(r.repository)}: its copy in the store is damaged: "
               f"{printable(r.damage)}; the next `lpam apply` moves it aside and fetches it "
               "anew." for r in report.apps if r.damage is not None]
-    lines += _footer(report) + _agent(report)
+    lines += _footer(report) + _agent(report) + _bluetooth(report)
     if not report.apps:
         return "\n".join(
             ["No app repositories. Write a desired state and run `lpam apply`.", *lines])
@@ -159,3 +160,16 @@ def _agent(report: StatusReport) -> list[str]:
             f"{local.edits} edit(s) since {local.since}); the agent applies it instead of "
             "the fleet's file until `lpam apply --release` or the phone's update ends it."))
     return lines
+
+
+def _bluetooth(report: StatusReport) -> list[str]:
+    """Who may change the car over Bluetooth, while `lpam ble` runs (else nothing: no
+    phone can change anything then)."""
+    ble = report.bluetooth
+    if ble is None:
+        return []
+    if ble.writes is Writes.OPEN:
+        return [printable(f"Bluetooth (lpam ble on {ble.adapter}): writes are OPEN: any phone "
+                          "in range may change the car's apps (--writes open)")]
+    return [printable(f"Bluetooth (lpam ble on {ble.adapter}): only a bonded phone may change "
+                      "the car's apps; `lpam ble pair` lets a phone pair")]

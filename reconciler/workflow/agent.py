@@ -110,12 +110,15 @@ def install_agent(machine: Machine, command: list[str], *, config_file: Path | N
     return _install_units(machine, agent_units(command, other), report), config
 
 
-def install_ble(machine: Machine, command: list[str], *, report: Report) -> list[str]:
-    """Write the unit of `lpam ble` (adapters/services/agentunits.py); where systemd runs,
+def install_ble(machine: Machine, command: list[str], *, report: Report,
+                writes: str = "bonded") -> list[str]:
+    """Write the unit of `lpam ble` (adapters/services/agentunits.py), serving in the
+    mode `writes` (schemas/bluetooth.py: who may change the car); where systemd runs,
     enable and start it. Returns the unit file written."""
     from reconciler.adapters.services.agentunits import ble_unit
+    from schemas.bluetooth import Writes
 
-    return _install_units(machine, ble_unit(command), report)
+    return _install_units(machine, ble_unit(command, Writes(writes)), report)
 
 
 def _install_units(machine: Machine, units: dict[str, str], report: Report) -> list[str]:

@@ -27,7 +27,7 @@ import pytest
 
 from reconciler.base.layout import Layout
 from reconciler.engine.execution.lock import apply_lock
-from tests.bluez_double import BluezDouble, until
+from tests.bluez_double import NOT_PAIRED, BluezDouble, PhoneError, bond, until
 from tests.dbus import needs_dbus_daemon, private_bus
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import TICKER, FieldCar, applied, field_repos
@@ -37,6 +37,7 @@ pytestmark = needs_dbus_daemon
 
 PHONE_A = "/org/bluez/hci0/dev_AA_BB_CC_DD_EE_01"
 PHONE_B = "/org/bluez/hci0/dev_AA_BB_CC_DD_EE_02"
+STRANGER = "/org/bluez/hci0/dev_66_55_44_33_22_11"  # in range, never paired with the car
 INSTALL_SECONDS = 25
 SCRIPT = """#!/usr/bin/env bash
 echo "$LPAM_APP:{name}" >> "$LPAM_ROOT/events.log"
@@ -75,11 +76,12 @@ def bus(tmp_path: Path) -> Iterator[str]:
 
 
 @contextlib.contextmanager
-def ble(car: FieldCar, bus: str) -> Iterator[subprocess.Popen[str]]:
+def ble(car: FieldCar, bus: str, *options: str) -> Iterator[subprocess.Popen[str]]:
     """`lpam ble` on the private bus; SIGTERM by its pid when the block ends (if alive)."""
     log = open(car.root / "ble.log", "w")  # noqa: SIM115 - closed below
     proc = subprocess.Popen(
-        [sys.executable, "-m", "reconciler", "--root", str(car.root), "ble", "--bus", bus],
+        [sys.executable, "-m", "reconciler", "--root", str(car.root), "ble", "--bus", bus,
+         *options],
         stdout=log, stderr=subprocess.STDOUT, text=True, env=dict(os.environ))
     try:
         yield proc
@@ -100,7 +102,10 @@ def scenario(body: Callable[[], Any], timeout: float = 150) -> None:
 
 @contextlib.asynccontextmanager
 async def phones(bus: str) -> AsyncIterator[BluezDouble]:
+    """bluetoothd with PHONE_A and PHONE_B bonded with the car (`lpam ble pair` did it)."""
     double = BluezDouble(bus)
+    bond(double, PHONE_A)
+    bond(double, PHONE_B)
     await double.start()
     try:
         await double.registered(timeout=30)
@@ -283,3 +288,54 @@ def test_sigterm_unregisters_and_exits_0(car: FieldCar, bus: str) -> None:
     with ble(car, bus) as proc:
         scenario(lambda: body(proc))
         assert proc.returncode == 0, (car.root / "ble.log").read_text()
+
+
+def test_a_phone_that_never_paired_changes_nothing_and_status_says_bonded_only(
+        car: FieldCar, bus: str) -> None:
+    """The default: a stranger's phone in range of the parked car can read the car, not
+    change it; BlueZ refuses its write before lpam hears of it. `lpam status` says so."""
+    before = car.desired.read_bytes()
+    record = (car.root / "var/lib/lpam/state.json").read_bytes()
+
+    async def body() -> None:
+        async with phones(bus) as double:
+            stranger = Phone(double, STRANGER)
+            await stranger.connect()
+            assert await stranger.next_status(0, 10) == "Hello from the Pi!"
+            with pytest.raises(PhoneError, match=NOT_PAIRED):
+                await stranger.send("app_enable", {"app": "slow"})
+            with pytest.raises(PhoneError, match=NOT_PAIRED):
+                await stranger.command("As")
+            shown = car.lpam.status()["bluetooth"]
+            assert (shown["writes"], shown["adapter"]) == ("bonded", "/org/bluez/hci0")
+            table = car.lpam("status").stdout
+            assert "only a bonded phone may change the car's apps" in table, table
+            owner = Phone(double, PHONE_A)  # a bonded phone: as before
+            await owner.command("A")
+            assert "slow" in rows(await owner.next_message(0, 20))
+
+    with ble(car, bus):
+        scenario(body)
+    assert car.desired.read_bytes() == before
+    assert (car.root / "var/lib/lpam/state.json").read_bytes() == record
+    app = car.app()
+    assert app["name"] == "ticker" and app["running"]
+    assert car.lpam.status()["bluetooth"] is None  # lpam ble stopped: no mode to tell
+    assert "Bluetooth" not in car.lpam("status").stdout
+
+
+def test_writes_open_lets_any_phone_change_the_car_and_status_says_so(
+        car: FieldCar, bus: str) -> None:
+    async def body() -> None:
+        async with phones(bus) as double:
+            stranger = Phone(double, STRANGER)
+            await stranger.connect()
+            await stranger.next_status(0, 10)
+            await stranger.command("A")
+            assert "slow" in rows(await stranger.next_message(0, 20))
+            assert double.refused == []
+            assert car.lpam.status()["bluetooth"]["writes"] == "open"
+            assert "writes are OPEN: any phone in range" in car.lpam("status").stdout
+
+    with ble(car, bus, "--writes", "open"):
+        scenario(body)

@@ -140,7 +140,8 @@ def test_without_a_bus_it_says_it_retries_and_when(tmp_path: Path) -> None:
         proc.send_signal(signal.SIGTERM)
     out = finish(proc)
     assert proc.returncode == 0, out
-    lines = out.splitlines()
+    mode, *lines = out.splitlines()  # the first line says who may change the car
+    assert mode.startswith("only a bonded phone may change the car's apps"), out
     assert len(lines) == 2, out
     assert lines[0].startswith(f"cannot connect to unix:path={tmp_path / 'no-bus.sock'}: ")
     assert lines[0].endswith("; retrying in 0.5 s, then at longer intervals up to 10 s; "

@@ -23,7 +23,8 @@ from dbus_fast import BusType, Message, MessageType, Variant
 from dbus_fast.aio import MessageBus
 
 from reconciler.adapters.bluez import Characteristic, GattServer
-from tests.bluez_double import BluezDouble, PhoneError, until
+from schemas.bluetooth import Writes
+from tests.bluez_double import NOT_PAIRED, BluezDouble, PhoneError, bond, until
 from tests.dbus import needs_dbus_daemon, private_bus
 
 pytestmark = needs_dbus_daemon
@@ -45,7 +46,13 @@ OUTPUT, COMMAND, CONFIG, INPUT, STATUS = (
     f"0000000{n}-4d3d-3d3d-3d3d-3d3d3d3d3d3d" for n in (2, 3, 4, 5, 6))
 PHONE_A = "/org/bluez/hci0/dev_AA_BB_CC_DD_EE_01"
 PHONE_B = "/org/bluez/hci0/dev_AA_BB_CC_DD_EE_02"
+STRANGER = "/org/bluez/hci0/dev_66_55_44_33_22_11"  # in range, never paired with the car
 SCENARIO_TIMEOUT = 30.0
+CHANGING = {"00000003-710e-4a5b-8d75-3e5b444bc3cf", INPUT, COMMAND, CONFIG}
+"""The characteristics a phone writes to change the car (bluezone's `write` flag)."""
+OPEN_TREE = Path(__file__).parent.parent / "fixtures" / "ble" / "gatt-tree-open.hex"
+"""The GetManagedObjects answer lpam registered before writes needed a bonded phone
+(recorded from main at 803df38 with dbus-fast's marshaller): `--writes open` gives it."""
 
 
 class Recorder:
@@ -107,10 +114,15 @@ async def bluetoothd(address: str, **kwargs: Any) -> AsyncIterator[BluezDouble]:
 @contextlib.asynccontextmanager
 async def served(bus: str, handler: Recorder | None = None,
                  log: Callable[[str], None] = print,
-                 bug: Callable[[], str] = lambda: "nowhere") -> AsyncIterator[BluezDouble]:
-    """bluetoothd on `bus` with lpam's server registered: the double, acting as phones."""
-    server = GattServer(handler or Recorder(), bus_address=bus, log=log, bug=bug)
+                 bug: Callable[[], str] = lambda: "nowhere",
+                 writes: Writes = Writes.BONDED) -> AsyncIterator[BluezDouble]:
+    """bluetoothd on `bus` with lpam's server registered: the double, acting as phones
+    (PHONE_A and PHONE_B bonded with the car)."""
+    server = GattServer(handler or Recorder(), bus_address=bus, log=log, bug=bug,
+                        writes=writes)
     async with bluetoothd(bus) as double, serving(server):
+        bond(double, PHONE_A)
+        bond(double, PHONE_B)
         await double.registered()
         yield double
 
@@ -127,7 +139,9 @@ def test_registers_the_service_and_advertisement_privzone_looks_for(bus: str) ->
                      for p in objects.values() if "org.bluez.GattCharacteristic1" in p}
             assert sorted(chars) == sorted(BLUEZONE)
             for uuid, (flags, descriptor_uuid, text) in BLUEZONE.items():
-                assert chars[uuid]["Flags"] == flags, uuid
+                # every write asks for an encrypted link (a bonded phone); reads stay open
+                asked = ["encrypt-write" if f == "write" else f for f in flags]
+                assert chars[uuid]["Flags"] == asked, uuid
                 descriptor = objects[double.descriptor_of(uuid)]["org.bluez.GattDescriptor1"]
                 assert (descriptor["UUID"], descriptor["Flags"]) == (descriptor_uuid, ["read"])
                 assert await double.read_descriptor(uuid) == text.encode()
@@ -139,6 +153,66 @@ def test_registers_the_service_and_advertisement_privzone_looks_for(bus: str) ->
             assert advertisement["org.bluez.LEAdvertisement1"] == {
                 "Type": "broadcast", "LocalName": "CIRCLES", "ServiceUUIDs": [SERVICE],
                 "IncludeTxPower": True}
+
+    scenario(body)
+
+
+def test_every_characteristic_that_changes_the_car_asks_for_encryption(bus: str) -> None:
+    async def body() -> None:
+        async with served(bus) as double:
+            assert double.app is not None
+            flags = {p["org.bluez.GattCharacteristic1"]["UUID"]:
+                     set(p["org.bluez.GattCharacteristic1"]["Flags"])
+                     for p in double.app.objects.values()
+                     if "org.bluez.GattCharacteristic1" in p}
+            assert {u for u, f in flags.items() if "encrypt-write" in f} == CHANGING
+            assert not any("write" in f for f in flags.values())  # no plain write left
+            assert {u for u, f in flags.items() if "read" in f} == {
+                u for u, (f, _, _) in BLUEZONE.items() if "read" in f}  # reads stay open
+            # and no phone pairs outside `lpam ble pair`'s window
+            await until(lambda: double.adapter_props["Pairable"] is False, 5)
+
+    scenario(body)
+
+
+def test_writes_open_registers_bluezones_tree_byte_for_byte(bus: str) -> None:
+    from dbus_fast._private.marshaller import Marshaller
+
+    async def body() -> None:
+        async with served(bus, writes=Writes.OPEN) as double:
+            assert double.app is not None
+            sent = bytes(Marshaller("a{oa{sa{sv}}}", [double.app.raw]).marshall())
+            assert sent.hex() == "".join(OPEN_TREE.read_text().split())
+
+    scenario(body)
+
+
+def test_an_unbonded_phones_write_is_refused_by_bluez_and_never_reaches_lpam(
+        bus: str) -> None:
+    handler = Recorder()
+
+    async def body() -> None:
+        async with served(bus, handler) as double:
+            for uuid in sorted(CHANGING):
+                with pytest.raises(PhoneError, match=NOT_PAIRED):
+                    await double.write(uuid, b"A", STRANGER)
+            assert await double.read(CONFIG, STRANGER) == f"CONFIG for {STRANGER}".encode()
+            await double.write(COMMAND, b"A", PHONE_A)  # a bonded phone: as before
+            assert sorted(double.refused) == sorted((u, STRANGER) for u in CHANGING)
+        assert handler.writes == [(Characteristic.COMMAND, b"A", PHONE_A)]
+
+    scenario(body)
+
+
+def test_writes_open_lets_any_phone_write_as_bluezone_did(bus: str) -> None:
+    handler = Recorder()
+
+    async def body() -> None:
+        async with served(bus, handler, writes=Writes.OPEN) as double:
+            await double.write(COMMAND, b"A", STRANGER)
+            assert double.refused == []
+            assert ("Set", "org.bluez.Adapter1") not in double.events  # pairable as it was
+        assert handler.writes == [(Characteristic.COMMAND, b"A", STRANGER)]
 
     scenario(body)
 
@@ -321,7 +395,7 @@ def test_an_advertisement_bluetoothd_released_is_registered_again(bus: str) -> N
         async with served(bus) as double:
             await double.release_advertisement()
             await double.registered(timeout=3)
-            assert [e for e, _ in double.events] == [
+            assert [e for e, _ in double.events if e.startswith("Register")] == [
                 "RegisterApplication", "RegisterAdvertisement", "RegisterAdvertisement"]
 
     scenario(body)

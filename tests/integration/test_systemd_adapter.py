@@ -474,11 +474,18 @@ def test_install_ble_writes_a_verified_unit_that_replaces_bluezone(
     unit = root / "etc/systemd/system/lpam-ble.service"
     assert verify(unit) == ""
     text = unit.read_text()
-    assert f'ExecStart="{sys.executable}" "-m" "reconciler" "--root" "{root}" "ble"' in text
+    assert f'ExecStart="{sys.executable}" "-m" "reconciler" "--root" "{root}" "ble"\n' in text
     assert "Conflicts=bluezone.service" in text and "After=bluetooth.service" in text
     calls = [c for c in fake.calls() if c[0] == "systemctl"]
     assert ["systemctl", "--no-reload", "enable", "--", "lpam-ble.service"] in calls
     assert ["systemctl", "start", "--", "lpam-ble.service"] in calls
+    # a lab's car: the unit's command keeps bluezone's open writes (issue 31)
+    done = subprocess.run([sys.executable, "-m", "reconciler", "--root", str(root),
+                           "install-ble", "--services", "systemd", "--writes", "open"],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    assert verify(unit) == ""
+    assert f'"--root" "{root}" "ble" "--writes" "open"\n' in unit.read_text()
 
 
 def test_install_agent_refuses_a_bad_agent_yaml_and_writes_nothing(

@@ -27,14 +27,14 @@ from reconciler.adapters.bluez.tree import (
     ADVERTISEMENT_IFACE,
     CHARACTERISTIC_IFACE,
     DESCRIPTOR_IFACE,
-    NODES,
     OBJECT_MANAGER_IFACE,
     PROPERTIES_IFACE,
     ROOT,
+    Tree,
     characteristic_path,
-    managed_objects,
-    properties_of,
+    tree,
 )
+from schemas.bluetooth import Writes
 
 SLOW_HANDLER = 0.1  # seconds a handler may hold the loop before it is reported
 
@@ -60,12 +60,15 @@ class GattHandler(Protocol):
 
 
 class Objects:
-    """Answers method calls on the exported tree; knows which characteristics notify."""
+    """Answers method calls on the exported tree (of the write mode `writes`); knows which
+    characteristics notify."""
 
     def __init__(self, handler: GattHandler, *, log: Callable[[str], None],
                  released: Callable[[], None],
-                 bug: Callable[[], str] = lambda: "(no debug log)") -> None:
+                 bug: Callable[[], str] = lambda: "(no debug log)",
+                 writes: Writes = Writes.BONDED) -> None:
         self._handler = handler
+        self._tree: Tree = tree(writes)
         self._log = log
         self._bug = bug
         self._released = released
@@ -80,7 +83,7 @@ class Objects:
         may pose as a phone, whatever the bus's policy allows."""
         if msg.message_type is not MessageType.METHOD_CALL:
             return None
-        if msg.path != ROOT and msg.path not in NODES:
+        if msg.path != ROOT and msg.path not in self._tree.nodes:
             return None
         if bluez is None or msg.sender != bluez:
             return Message.new_error(msg, ACCESS_DENIED, "only bluetoothd is served")
@@ -111,7 +114,7 @@ class Objects:
     def _dispatch(self, msg: Message) -> Message:
         member = (msg.interface, msg.member, msg.signature)
         if member == (OBJECT_MANAGER_IFACE, "GetManagedObjects", "") and msg.path == ROOT:
-            return Message.new_method_return(msg, "a{oa{sa{sv}}}", [managed_objects()])
+            return Message.new_method_return(msg, "a{oa{sa{sv}}}", [self._tree.managed_objects()])
         if member == (PROPERTIES_IFACE, "GetAll", "s"):
             return Message.new_method_return(msg, "a{sv}", [self._properties(msg)])
         if member == (PROPERTIES_IFACE, "Get", "ss"):
@@ -123,7 +126,7 @@ class Objects:
             self._log("bluetoothd released the advertisement")
             self._released()
             return Message.new_method_return(msg)
-        node = NODES.get(msg.path or "")
+        node = self._tree.nodes.get(msg.path or "")
         if node is not None and node.characteristic is not None \
                 and node.interface == msg.interface:
             return self._gatt(msg, node.characteristic)
@@ -131,7 +134,7 @@ class Objects:
                                        f"is not on {msg.path}")
 
     def _properties(self, msg: Message) -> dict[str, Variant]:
-        props = properties_of(msg.path or "", msg.body[0])
+        props = self._tree.properties_of(msg.path or "", msg.body[0])
         if props is None:
             raise _Refused(INVALID_ARGS, f"{msg.path} has no interface {msg.body[0]}")
         return props

@@ -11,6 +11,9 @@ application (`GattManager1.RegisterApplication`) and of the advertisement
   for a week without Bluetooth);
 - bluetoothd restarted (the `org.bluez` name leaves and returns, seen by NameOwnerChanged):
   a new bluetoothd knows nothing, so both are registered again at once;
+- writes that need a bonded phone (the default, shape.py `flags_for`): once the GATT
+  application is registered, the adapter is made not pairable, so that phones bond only
+  inside the window `lpam ble pair` opens (pairing.py); `--writes open` leaves it alone;
 - stop: both unregistered (errors ignored: bluetoothd may be gone), then the bus closed.
   A stop that comes while bluetoothd works on a registration does not abandon it: the
   answer is awaited (LEAVE_TIMEOUT at most), since bluetoothd may already hold the object,
@@ -29,15 +32,17 @@ import contextlib
 from collections.abc import Awaitable, Callable
 from typing import Any, TypeVar
 
-from dbus_fast import BusType, Message, MessageType
+from dbus_fast import BusType, Message, MessageType, Variant
 from dbus_fast.aio import MessageBus
 
 from reconciler.adapters.bluez.objects import GattHandler, Objects
 from reconciler.adapters.bluez.shape import Characteristic
-from reconciler.adapters.bluez.tree import ADVERTISEMENT, ROOT
+from reconciler.adapters.bluez.tree import ADVERTISEMENT, PROPERTIES_IFACE, ROOT
+from schemas.bluetooth import Writes
 
 BLUEZ = "org.bluez"
 GATT_MANAGER = "org.bluez.GattManager1"
+ADAPTER_IFACE = "org.bluez.Adapter1"
 ADVERTISING_MANAGER = "org.bluez.LEAdvertisingManager1"
 DBUS = "org.freedesktop.DBus"
 OWNER_RULE = (f"type='signal',sender='{DBUS}',interface='{DBUS}',"
@@ -64,15 +69,18 @@ class GattServer:
 
     def __init__(self, handler: GattHandler, *, bus_address: str | None = None,
                  adapter: str = "/org/bluez/hci0", log: Callable[[str], None] = print,
-                 bug: Callable[[], str] = lambda: "(no debug log)") -> None:
+                 bug: Callable[[], str] = lambda: "(no debug log)",
+                 writes: Writes = Writes.BONDED) -> None:
         """`log` writes a line of the service's log; `bug` records the traceback of a fault
-        of lpam's own (called inside the `except`) and says where it went."""
+        of lpam's own (called inside the `except`) and says where it went; `writes` who may
+        change the car (shape.py `flags_for`: bonded phones unless told otherwise)."""
         self._address = bus_address  # None: dbus-fast reads DBUS_SYSTEM_BUS_ADDRESS
         self._adapter = adapter
         self._log = log
         self._bug = bug
         self._objects = Objects(handler, log=log, released=self._advertisement_released,
-                                bug=bug)
+                                bug=bug, writes=writes)
+        self._unpairable = writes is Writes.BONDED
         self._bus: MessageBus | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
@@ -190,7 +198,24 @@ class GattServer:
             self._registered.add(what)
             self._problem = ""
             self._log(f"registered the {what} on {self._adapter}")
+            if what == APPLICATION and self._unpairable:
+                await self._not_pairable(bus, stop)
         return True
+
+    async def _not_pairable(self, bus: MessageBus, stop: asyncio.Event) -> None:
+        """Writes need a bonded phone: the adapter is made not pairable (BlueZ's default
+        is pairable, and a bluetoothd that restarts is back at its default), so that a
+        phone bonds only inside `lpam ble pair`'s window, whatever agent runs. A failure
+        is logged, never fatal: the GATT service still refuses unbonded writes."""
+        error = await _call(bus, Message(
+            destination=BLUEZ, path=self._adapter, interface=PROPERTIES_IFACE, member="Set",
+            signature="ssv", body=[ADAPTER_IFACE, "Pairable", Variant("b", False)]),
+            stop, CALL_TIMEOUT)
+        if error is None:
+            self._log(f"{self._adapter} is not pairable: `lpam ble pair` opens a window")
+        elif not stop.is_set():
+            self._log(f"could not make {self._adapter} not pairable: "
+                      f"{self._explain(error)}")
 
     async def _leave(self, bus: MessageBus, *, stopping: bool = False) -> None:
         """Unregister what was (or may have been) registered, then close the connection.
@@ -260,13 +285,7 @@ class GattServer:
                        body=[path, {}] if options else [path])
 
     def _explain(self, error: str) -> str:
-        name = error.split(":", 1)[0]
-        if name in (f"{DBUS}.Error.ServiceUnknown", f"{DBUS}.Error.NameHasNoOwner"):
-            return "bluetoothd is not running (nobody owns org.bluez on the system bus)"
-        if name in (f"{DBUS}.Error.UnknownObject", f"{DBUS}.Error.UnknownMethod",
-                    f"{DBUS}.Error.UnknownInterface"):
-            return f"bluetoothd has no adapter {self._adapter} (is the controller up?)"
-        return error
+        return explain(error, self._adapter)
 
     def _report(self, problem: str, *, retry: _Backoff | None = None) -> None:
         """Log `problem` once, until the reason changes; with `retry`, say when lpam
@@ -293,6 +312,17 @@ class _Backoff:
             return f"retrying every {MAX_DELAY:g} s; said again only when the reason changes"
         return (f"retrying in {self._delay:g} s, then at longer intervals up to "
                 f"{MAX_DELAY:g} s; said again only when the reason changes")
+
+
+def explain(error: str, adapter: str) -> str:
+    """A failed call on `adapter` (`error.name: text`) in the words a user acts on."""
+    name = error.split(":", 1)[0]
+    if name in (f"{DBUS}.Error.ServiceUnknown", f"{DBUS}.Error.NameHasNoOwner"):
+        return "bluetoothd is not running (nobody owns org.bluez on the system bus)"
+    if name in (f"{DBUS}.Error.UnknownObject", f"{DBUS}.Error.UnknownMethod",
+                f"{DBUS}.Error.UnknownInterface"):
+        return f"bluetoothd has no adapter {adapter} (is the controller up?)"
+    return error
 
 
 def _daemon_call(member: str, signature: str, body: list[Any]) -> Message:

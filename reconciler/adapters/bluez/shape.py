@@ -21,11 +21,20 @@ Two of bluezone's choices are kept on purpose although they look odd:
   connectable (discoverable, as bluezone's install.sh sets it up); that is what works
   today, so it is kept, and ADVERTISEMENT_TYPE is the one value to change if a car's
   phones see CIRCLES but cannot connect.
+
+One choice is lpam's own: the flags below are bluezone's, and they are what the tree
+exports only with `lpam ble --writes open`. By default (`Writes.BONDED`) every `write`
+becomes `encrypt-write` (`flags_for`): BlueZ then answers a write over a link that is not
+encrypted with ATT's "Insufficient Encryption" without ever calling lpam, and a link is
+encrypted only with a phone that has paired with the car (bonded: it keeps the keys).
+Reads that only report stay open.
 """
 
 from __future__ import annotations
 
 from enum import Enum
+
+from schemas.bluetooth import Writes
 
 SERVICE_UUID = "00000001-4d3d-3d3d-3d3d-3d3d3d3d3d3d"
 LOCAL_NAME = "CIRCLES"
@@ -77,3 +86,20 @@ class Characteristic(Enum):
 
 
 DESCRIPTOR_FLAGS = ("read",)
+
+WRITE = "write"
+ENCRYPTED_WRITE = "encrypt-write"
+
+
+def flags_for(char: Characteristic, writes: Writes) -> tuple[str, ...]:
+    """The flags `char` is exported with when `writes` says who may change the car.
+
+    `encrypt-write`, not `encrypt-authenticated-write`: the Pi has no screen and no
+    keyboard, so its agent's capability is NoInputNoOutput and every pairing is Just Works,
+    which gives an encrypted link that is *not* authenticated (no passkey was compared).
+    The authenticated variant would refuse every phone, paired or not. What keeps a
+    stranger out is therefore when pairing is possible at all: only inside the window
+    `lpam ble pair` opens (adapters/bluez/pairing.py)."""
+    if writes is Writes.OPEN:
+        return char.flags
+    return tuple(ENCRYPTED_WRITE if flag == WRITE else flag for flag in char.flags)

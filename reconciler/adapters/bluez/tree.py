@@ -4,12 +4,14 @@ BlueZ learns a GATT application from one `GetManagedObjects` call on the applica
 root (`org.freedesktop.DBus.ObjectManager`) and an advertisement from its
 `org.freedesktop.DBus.Properties` (see BlueZ's doc/org.bluez.GattManager.rst and
 org.bluez.LEAdvertisingManager.rst). The tree is fixed for the life of the process, so it
-is computed once from `shape.py`; `server.py` answers the calls from it.
+is computed once from `shape.py` for the write mode the service runs in (`Writes`: only
+the characteristics' flags differ); `objects.py` answers the calls from it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 from dbus_fast import Variant
 
@@ -20,7 +22,9 @@ from reconciler.adapters.bluez.shape import (
     LOCAL_NAME,
     SERVICE_UUID,
     Characteristic,
+    flags_for,
 )
+from schemas.bluetooth import Writes
 
 SERVICE_IFACE = "org.bluez.GattService1"
 CHARACTERISTIC_IFACE = "org.bluez.GattCharacteristic1"
@@ -57,7 +61,7 @@ def descriptor_path(char: Characteristic) -> str:
     return characteristic_path(char) + "/desc0"
 
 
-def _gatt_nodes() -> list[Node]:
+def _gatt_nodes(writes: Writes) -> list[Node]:
     chars = list(Characteristic)
     nodes = [Node(SERVICE, SERVICE_IFACE, {
         "UUID": Variant("s", SERVICE_UUID),
@@ -68,7 +72,7 @@ def _gatt_nodes() -> list[Node]:
         nodes.append(Node(characteristic_path(char), CHARACTERISTIC_IFACE, {
             "Service": Variant("o", SERVICE),
             "UUID": Variant("s", char.uuid),
-            "Flags": Variant("as", list(char.flags)),
+            "Flags": Variant("as", list(flags_for(char, writes))),
             "Descriptors": Variant("ao", [descriptor_path(char)]),
         }, char))
         nodes.append(Node(descriptor_path(char), DESCRIPTOR_IFACE, {
@@ -88,21 +92,30 @@ def _advertisement_node() -> Node:
     })
 
 
-GATT_NODES: tuple[Node, ...] = tuple(_gatt_nodes())
-NODES: dict[str, Node] = {n.path: n for n in (*GATT_NODES, _advertisement_node())}
+@dataclass(frozen=True)
+class Tree:
+    """Every exported object of one write mode: the GATT service's (`gatt`, in bluezone's
+    order) and the advertisement, by path (`nodes`)."""
+
+    gatt: tuple[Node, ...]
+    nodes: dict[str, Node]
+
+    def managed_objects(self) -> dict[str, dict[str, Properties]]:
+        """The answer to `GetManagedObjects` on ROOT (signature `a{oa{sa{sv}}}`): the GATT
+        service with its characteristics and descriptors, not the advertisement (BlueZ
+        registers that separately and reads it through Properties)."""
+        return {n.path: {n.interface: n.properties} for n in self.gatt}
+
+    def properties_of(self, path: str, interface: str) -> Properties | None:
+        """The properties of `interface` on `path`, or None when that object lacks it."""
+        node = self.nodes.get(path)
+        if node is None or node.interface != interface:
+            return None
+        return node.properties
 
 
-def managed_objects() -> dict[str, dict[str, Properties]]:
-    """The answer to `GetManagedObjects` on ROOT (signature `a{oa{sa{sv}}}`): the GATT
-    service with its characteristics and descriptors, not the advertisement (BlueZ
-    registers that separately and reads it through Properties)."""
-    return {n.path: {n.interface: n.properties} for n in GATT_NODES}
-
-
-def properties_of(path: str, interface: str) -> Properties | None:
-    """The properties of `interface` on `path`, or None when that object lacks it."""
-    node = NODES.get(path)
-    if node is None or node.interface != interface:
-        return None
-    return node.properties
-
+@cache
+def tree(writes: Writes) -> Tree:
+    """The tree exported when `writes` says who may change the car."""
+    gatt = tuple(_gatt_nodes(writes))
+    return Tree(gatt, {n.path: n for n in (*gatt, _advertisement_node())})

@@ -23,6 +23,7 @@ Together they replace libpanda's own update-on-boot and update-on-shutdown for a
 from __future__ import annotations
 
 from reconciler.adapters.services.unitfile import HEADER, exec_line
+from schemas.bluetooth import Writes
 
 AGENT = "lpam-agent"
 FETCH = "lpam-agent-fetch"
@@ -54,13 +55,16 @@ def agent_units(lpam: list[str], config: str | None = None) -> dict[str, str]:
     return {AGENT: agent, FETCH: fetch}
 
 
-def ble_unit(lpam: list[str]) -> dict[str, str]:
-    """Unit name → file text of `lpam ble` (see the module docstring)."""
+def ble_unit(lpam: list[str], writes: Writes = Writes.BONDED) -> dict[str, str]:
+    """Unit name → file text of `lpam ble` (see the module docstring); `--writes open`
+    in its command line when `writes` says any phone may change the car, else the
+    command is the same as before the setting existed."""
+    mode = ["--writes", str(writes)] if writes is Writes.OPEN else []
     return {BLE: _file(
         "lpam ble: the phone app's (Privzone) Bluetooth service",
         ["Wants=bluetooth.service", "After=bluetooth.service dbus.service",
          f"Conflicts={BLUEZONE}"],
-        _long_running([*lpam, "ble"], restart_seconds=5))}
+        _long_running([*lpam, "ble", *mode], restart_seconds=5))}
 
 
 def _file(description: str, unit: list[str], rest: list[str]) -> str:

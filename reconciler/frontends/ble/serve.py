@@ -25,7 +25,9 @@ from reconciler.adapters.bluez.server import GattServer
 from reconciler.adapters.bluez.shape import Characteristic
 from reconciler.frontends.ble.bridge import Bridge
 from reconciler.frontends.ble.temperature import Thermometer
+from reconciler.workflow.bluetooth import announced, said
 from reconciler.workflow.machine import Machine
+from schemas.bluetooth import Writes
 
 TICK = 1.0
 """Seconds between two temperatures (the phone gives up after 20 s without one)."""
@@ -37,18 +39,23 @@ TimeoutStopSec is the same: adapters/services/agentunits.py)."""
 
 def serve(machine: Machine, *, bus_address: str | None, adapter: str,
           log: Callable[[str], None], bug: Callable[[], str],
-          stopping: threading.Event | None = None) -> int:
+          stopping: threading.Event | None = None, writes: Writes = Writes.BONDED) -> int:
     """Run until stopped; 0 when stopped by a signal, as a service should. `stopping`:
-    set by the caller's own signal handlers while lpam was starting."""
+    set by the caller's own signal handlers while lpam was starting; `writes`: who may
+    change the car (recorded for `lpam status` while it runs)."""
     stopping = threading.Event() if stopping is None else stopping
     machine = replace(machine, stop_requested=stopping.is_set)
-    asyncio.run(_serve(machine, stopping, bus_address=bus_address, adapter=adapter, log=log,
-                       bug=bug))
+    log(said(writes))
+    with announced(machine.layout, writes=writes, adapter=adapter,
+                   since=machine.clock().isoformat(timespec="seconds")):
+        asyncio.run(_serve(machine, stopping, bus_address=bus_address, adapter=adapter,
+                           log=log, bug=bug, writes=writes))
     return 0
 
 
 async def _serve(machine: Machine, stopping: threading.Event, *, bus_address: str | None,
-                 adapter: str, log: Callable[[str], None], bug: Callable[[], str]) -> None:
+                 adapter: str, log: Callable[[str], None], bug: Callable[[], str],
+                 writes: Writes) -> None:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     servers: list[GattServer] = []
@@ -65,7 +72,8 @@ async def _serve(machine: Machine, stopping: threading.Event, *, bus_address: st
     thermometer = Thermometer(machine.layout.thermal_zone)
     bridge = Bridge(machine, lambda char, value: servers[0].notify_threadsafe(char, value),
                     thermometer=thermometer, log=log, bug=bug)
-    server = GattServer(bridge, bus_address=bus_address, adapter=adapter, log=log, bug=bug)
+    server = GattServer(bridge, bus_address=bus_address, adapter=adapter, log=log, bug=bug,
+                        writes=writes)
     servers.append(server)
     for number in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(number, on_signal)
