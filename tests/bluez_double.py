@@ -11,6 +11,8 @@ way bluetoothd relays one: `ReadValue`/`WriteValue` with the phone's device path
 options, `StartNotify`, and the `PropertiesChanged` notifications collected per
 characteristic UUID. `restart` drops the connection and comes back as a new bluetoothd
 that has forgotten every registration, as `systemctl restart bluetooth` would.
+The phones it knows (`devices`) have device objects whose `org.bluez.Device1` properties
+(Address, Name, Alias) it serves as BlueZ does.
 `pause` makes it a busy bluetoothd: it takes that long before reading a registration's
 objects back, and again between taking the registration and answering, so that a test can
 stop lpam inside either window.
@@ -34,6 +36,7 @@ CHARACTERISTIC = "org.bluez.GattCharacteristic1"
 DESCRIPTOR = "org.bluez.GattDescriptor1"
 ADVERTISEMENT = "org.bluez.LEAdvertisement1"
 SERVICE = "org.bluez.GattService1"
+DEVICE = "org.bluez.Device1"
 # the flags bluetoothd's gatt-database.c parses (doc/org.bluez.GattCharacteristic.rst)
 CHAR_FLAGS = {"broadcast", "read", "write-without-response", "write", "notify", "indicate",
               "authenticated-signed-writes", "extended-properties", "reliable-write",
@@ -85,6 +88,7 @@ class BluezDouble:
         self.events: list[tuple[str, str]] = []  # (method, object path) of every call
         self.notifications: dict[str, list[bytes]] = {}
         self._tasks: set[asyncio.Future[Any]] = set()
+        self.devices: dict[str, dict[str, str]] = {}  # see `_device_call`
 
     async def start(self) -> None:
         bus = await MessageBus(bus_address=self.address, bus_type=BusType.SYSTEM).connect()
@@ -184,6 +188,8 @@ class BluezDouble:
         if msg.message_type is not MessageType.METHOD_CALL:
             return None
         self.events.append((str(msg.member), str(msg.body[0]) if msg.body else ""))
+        if msg.path in self.devices:
+            return self._device_call(msg)
         if msg.path != self.adapter:
             return Message.new_error(msg, "org.freedesktop.DBus.Error.UnknownObject",
                                      f"no object {msg.path}")
@@ -254,6 +260,22 @@ class BluezDouble:
             return Message.new_error(msg, "org.bluez.Error.DoesNotExist", "Does Not Exist")
         setattr(self, which, None)
         return Message.new_method_return(msg)
+
+    # the phones' device objects ----------------------------------------------------
+
+    def _device_call(self, msg: Message) -> Message:
+        """`org.bluez.Device1`'s properties of a phone bluetoothd knows (`devices`: its
+        object path → e.g. {"Address": "AA:…", "Name": "Pixel 7", "Alias": "Pixel 7"}),
+        read as BlueZ serves them: `Properties.GetAll` and `Get`. A phone that is not in
+        `devices` is an unknown object, as for BlueZ one it never saw."""
+        props = {k: Variant("s", v) for k, v in self.devices[str(msg.path)].items()}
+        call = (msg.interface, msg.member)
+        if call == (PROPERTIES, "GetAll") and msg.body == [DEVICE]:
+            return Message.new_method_return(msg, "a{sv}", [props])
+        if call == (PROPERTIES, "Get") and msg.body[:1] == [DEVICE] and msg.body[1] in props:
+            return Message.new_method_return(msg, "v", [props[msg.body[1]]])
+        return Message.new_error(msg, "org.freedesktop.DBus.Error.InvalidArgs",
+                                 f"{msg.member} {msg.body} on {msg.path}")
 
     def _notified(self, msg: Message) -> None:
         if (self.app is None or msg.member != "PropertiesChanged"
