@@ -21,6 +21,7 @@ from migrations import (
     agent_status_v1_to_v2,
     car_status_v0_to_v1,
     car_status_v1_to_v2,
+    car_status_v2_to_v3,
     desired_state_v0_to_v1,
     desired_state_v1_to_v2,
     generation_meta_v0_to_v1,
@@ -40,7 +41,7 @@ from schemas.kinds import DocumentKind as K
 
 CURRENT: dict[DocumentKind, int] = {
     K.DESIRED_STATE: 2, K.STATE_RECORD: 8, K.PLAN: 2, K.AGENT_CONFIG: 1, K.AGENT_STATUS: 2,
-    K.GENERATION_META: 1, K.CAR_STATUS: 2, K.OVERRIDE: 1,
+    K.GENERATION_META: 1, K.CAR_STATUS: 3, K.OVERRIDE: 1,
 }
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
@@ -59,7 +60,8 @@ STEPS: dict[DocumentKind, dict[str, tuple[str, Step]]] = {
     K.AGENT_STATUS: {"1": ("2", agent_status_v1_to_v2.upgrade)},
     K.GENERATION_META: {"0": ("1", generation_meta_v0_to_v1.upgrade)},
     K.CAR_STATUS: {"0": ("1", car_status_v0_to_v1.upgrade),
-                   "1": ("2", car_status_v1_to_v2.upgrade)},
+                   "1": ("2", car_status_v1_to_v2.upgrade),
+                   "2": ("3", car_status_v2_to_v3.upgrade)},
     K.OVERRIDE: {},
 }
 

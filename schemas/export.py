@@ -36,7 +36,7 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "generation-meta.v1.schema.json": GenerationMeta,
     "agent.v1.schema.json": AgentConfig,
     "agent-status.v2.schema.json": AgentStatus,
-    "car-status.v2.schema.json": CarStatus,
+    "car-status.v3.schema.json": CarStatus,
     "override.v1.schema.json": LocalOverride,
     "status-report.v1.schema.json": StatusReport,
 }

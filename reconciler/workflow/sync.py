@@ -218,12 +218,14 @@ STATUS_PREFIX = "status/"
 def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     """Push this vehicle's status to `status/<vehicle>` of the source when it is due
     (reconciler/core/publication.py: changed, or the heartbeat), so that `lpam fleet status` in
-    any clone shows the whole fleet from git alone; an unchanged status costs no connection
-    and no commit. The branch holds at most `HISTORY` commits. A source that refuses pushes
-    (a read-only mirror, a token without write access) costs a note, nothing more: the car
-    keeps working and its status stays local."""
+    any clone shows the whole fleet from git alone, and who made each car's last change;
+    an unchanged status costs no connection and no commit. The branch holds at most
+    `HISTORY` commits. A source that refuses pushes (a read-only mirror, a token without
+    write access) costs a note, nothing more: the car keeps working and its status stays
+    local."""
     from reconciler.base.atomic import write_atomic
-    from reconciler.core.publication import due, fingerprint, status_file
+    from reconciler.core.publication import due, fingerprint, last_change, status_file
+    from reconciler.engine.records.state import read_record
     from reconciler.report import status as machine_status
 
     own = read_status(machine)
@@ -233,7 +235,8 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     every = [a.published() for a in seen.installed]
     now = machine.clock()
     local = read_override(machine.layout)
-    mark = fingerprint(own, every, local)
+    change = last_change(read_record(machine.layout).history)
+    mark = fingerprint(own, every, local, change)
     why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
     if why is None:
         return
@@ -241,7 +244,7 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     result: Published = "pushed"
     reason = None
     try:
-        _push(machine, config, branch, status_file(own, every, local),
+        _push(machine, config, branch, status_file(own, every, local, change),
               when=int(now.timestamp()), report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:

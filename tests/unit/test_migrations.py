@@ -55,6 +55,7 @@ STEP_FIXTURES = {
     ("generation-meta", "0"): FIXTURES / "generation-meta" / "v0_to_v1",
     ("car-status", "0"): FIXTURES / "car-status" / "v0_to_v1",
     ("car-status", "1"): FIXTURES / "car-status" / "v1_to_v2",
+    ("car-status", "2"): FIXTURES / "car-status" / "v2_to_v3",
 }
 PATH = Path("doc.yaml")
 
