@@ -63,6 +63,7 @@ def test_history_and_status_name_the_phone_that_made_each_change(
         "phone AA:BB:CC:DD:EE:01 (Pixel 7)", "phone AA:BB:CC:DD:EE:02"]
     assert car.lpam.status()["last_apply"]["by"] == \
         {"kind": "phone", "id": "AA:BB:CC:DD:EE:02"}
+    assert "(asked by phone AA:BB:CC:DD:EE:02)" in car.lpam("status").stdout
     log = Path(car.root / "ble.log").read_text()
     assert "request from phone AA:BB:CC:DD:EE:01 (Pixel 7): " in log, log
     assert "refused a write from AA:BB:CC:DD:EE:02" in log, log

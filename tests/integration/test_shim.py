@@ -208,6 +208,7 @@ def test_history_names_the_user_who_made_each_change(shim: Shim) -> None:
         f"{login_name()} (libpanda-app-manager)", "carol (lpam)"]
     assert shim.lpam.status()["last_apply"]["by"] == \
         {"kind": "user", "id": "carol", "via": "lpam"}
+    assert "(asked by carol (lpam))" in shim.lpam("status").stdout
 
 
 def test_refusals_change_nothing_and_exit_non_zero(shim: Shim) -> None:
