@@ -147,7 +147,9 @@ class Bridge:
             job = self._jobs.get()
             if job is None:
                 return
-            by = self._who(job.device)
+            # who asked: a fault in asking BlueZ must cost the name, not the service
+            by = guarded(partial(self._who, job.device), bug=self._bug,
+                         internal=partial(self._unnamed, job.device))
             self._log(f"request from {by.shown}: {job.work!r}")
             # a bug must not end the service: said to the phone, and logged
             answer = guarded(partial(self._answer, job.work, by), bug=self._bug,
@@ -158,6 +160,13 @@ class Bridge:
                 self._notify(Characteristic.OUTPUT, chunk)
             if answer.status is not None:
                 self.status(answer.status)
+
+    def _unnamed(self, device: str | None, exc: Exception, where: str) -> Actor:
+        """The phone at `device` by the address its path spells, when asking BlueZ failed
+        for a fault of lpam's (logged: its traceback is in `where`)."""
+        self._log(f"internal error naming the phone at {device}: {exc!r}; details in "
+                  f"{where}")
+        return phone(address_in(device))
 
     def _internal(self, work: Work, exc: Exception, where: str) -> answers.Answer:
         self._log(f"internal error on {work!r}: {exc!r}; details in {where}")
