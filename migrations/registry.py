@@ -21,6 +21,7 @@ from migrations import (
     agent_status_v1_to_v2,
     car_status_v0_to_v1,
     car_status_v1_to_v2,
+    car_status_v2_to_v3,
     desired_state_v0_to_v1,
     desired_state_v1_to_v2,
     generation_meta_v0_to_v1,
@@ -31,6 +32,7 @@ from migrations import (
     state_record_v4_to_v5,
     state_record_v5_to_v6,
     state_record_v6_to_v7,
+    state_record_v7_to_v8,
 )
 from migrations.step import MigrationError, Step
 from reconciler.base.errors import ConfigError, VersionError
@@ -38,8 +40,8 @@ from schemas.kinds import DocumentKind
 from schemas.kinds import DocumentKind as K
 
 CURRENT: dict[DocumentKind, int] = {
-    K.DESIRED_STATE: 2, K.STATE_RECORD: 7, K.PLAN: 2, K.AGENT_CONFIG: 1, K.AGENT_STATUS: 2,
-    K.GENERATION_META: 1, K.CAR_STATUS: 2, K.OVERRIDE: 1,
+    K.DESIRED_STATE: 2, K.STATE_RECORD: 8, K.PLAN: 2, K.AGENT_CONFIG: 1, K.AGENT_STATUS: 2,
+    K.GENERATION_META: 1, K.CAR_STATUS: 3, K.OVERRIDE: 1,
 }
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
@@ -51,13 +53,15 @@ STEPS: dict[DocumentKind, dict[str, tuple[str, Step]]] = {
                      "3": ("4", state_record_v3_to_v4.upgrade),
                      "4": ("5", state_record_v4_to_v5.upgrade),
                      "5": ("6", state_record_v5_to_v6.upgrade),
-                     "6": ("7", state_record_v6_to_v7.upgrade)},
+                     "6": ("7", state_record_v6_to_v7.upgrade),
+                     "7": ("8", state_record_v7_to_v8.upgrade)},
     K.PLAN: {"1": ("2", plan_v1_to_v2.upgrade)},
     K.AGENT_CONFIG: {},
     K.AGENT_STATUS: {"1": ("2", agent_status_v1_to_v2.upgrade)},
     K.GENERATION_META: {"0": ("1", generation_meta_v0_to_v1.upgrade)},
     K.CAR_STATUS: {"0": ("1", car_status_v0_to_v1.upgrade),
-                   "1": ("2", car_status_v1_to_v2.upgrade)},
+                   "1": ("2", car_status_v1_to_v2.upgrade),
+                   "2": ("3", car_status_v2_to_v3.upgrade)},
     K.OVERRIDE: {},
 }
 

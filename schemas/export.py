@@ -31,12 +31,12 @@ from schemas.report import StatusReport
 DOCUMENTS: dict[str, type[BaseModel]] = {
     "desired-state.v2.schema.json": DesiredState,
     "app-catalog.schema.json": RawCatalog,
-    "state-record.v7.schema.json": StateRecord,
+    "state-record.v8.schema.json": StateRecord,
     "plan.v2.schema.json": Plan,
     "generation-meta.v1.schema.json": GenerationMeta,
     "agent.v1.schema.json": AgentConfig,
     "agent-status.v2.schema.json": AgentStatus,
-    "car-status.v2.schema.json": CarStatus,
+    "car-status.v3.schema.json": CarStatus,
     "override.v1.schema.json": LocalOverride,
     "status-report.v1.schema.json": StatusReport,
 }

@@ -32,6 +32,13 @@ ends `deferred` (which gates were closed, and when the agent's next pass tries a
 where version 6 left it `in progress` with a pid that was gone, so that status called it
 killed. Whether an apply `in progress` still runs is never written: it is derived from
 its pid (gone: it was cut off).
+
+Version 8 says who asked for each change (issue 31: anyone in Bluetooth range of a
+parked car could change what it runs): the history entries an apply writes and the last
+apply carry `by`, an `Actor` — the user at a terminal (`lpam`, `libpanda-app-manager`),
+the phone over Bluetooth (its address, and its name when BlueZ knows it), or the agent
+(with the fleet revision it applied). Written only when known: an entry from an older
+lpam has none, and reads as "not recorded".
 """
 
 from __future__ import annotations
@@ -48,7 +55,7 @@ from pydantic import (
 
 from schemas.generation import GenerationFields
 
-CURRENT_VERSION = 7
+CURRENT_VERSION = 8
 
 AppStatus = Literal["installing", "installed", "starting", "running", "stopping", "uninstalling"]
 """Where the installed app's lifecycle stands. The -ing values are written *before* the
@@ -121,6 +128,53 @@ class Stray(BaseModel):
         "/etc/libpanda.d/apps, whose own scripts stop and uninstall it")
 
 
+ActorKind = Literal["user", "phone", "agent"]
+
+
+class Actor(BaseModel):
+    """Who asked for a change: one value that every caller of the workflow passes (the
+    rule that makes it is reconciler/workflow/actor.py), stored where the change is
+    recorded. lpam records what reaches it: a phone BlueZ refused (an unbonded phone's
+    write to an `encrypt-write` characteristic) never reaches lpam, and is in BlueZ's
+    log, not here."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: ActorKind
+    id: str | None = Field(
+        default=None, description="user: the login name (`SUDO_USER` under sudo); phone: "
+        "its Bluetooth address; agent: the fleet revision it applied (None: the car's "
+        "local override, or not known)")
+    name: str | None = Field(
+        default=None, description="phone: its name as BlueZ knows it (None: BlueZ knows "
+        "none)")
+    via: str | None = Field(
+        default=None, description="user: the command it ran (`lpam`, "
+        "`libpanda-app-manager`)")
+
+    @model_serializer(mode="wrap")
+    def _known_written(self, handler: SerializerFunctionWrapHandler) -> Any:
+        data = handler(self)
+        if isinstance(data, dict):
+            for key in ("id", "name", "via"):
+                if data.get(key) is None:
+                    data.pop(key, None)
+        return data
+
+    @property
+    def shown(self) -> str:
+        """As `lpam history`, status and the fleet say it: `alice (lpam)`, `phone
+        AA:BB:CC:DD:EE:FF (Pixel 7)`, `agent (fleet revision 0123456789ab)`."""
+        if self.kind == "phone":
+            address = self.id or "(address not known)"
+            return f"phone {address}" + (f" ({self.name})" if self.name else "")
+        if self.kind == "agent":
+            return "agent (" + (f"fleet revision {self.id[:12]}" if self.id
+                                else "local override") + ")"
+        who = self.id or "(user not known)"
+        return who + (f" ({self.via})" if self.via else "")
+
+
 ApplyResult = Literal["applied", "failed", "rolled back"]
 LastResult = Literal["applied", "failed", "rolled back", "in progress", "interrupted",
                      "deferred"]
@@ -150,17 +204,20 @@ class LastApply(BaseModel):
     retry: str | None = Field(default=None, description="a deferred apply: when the "
                               "agent's next pass tries again (None: nothing tries it "
                               "again by itself; the next `lpam apply` does)")
+    by: Actor | None = Field(default=None, description="who asked for it (None: not "
+                             "recorded, an lpam before version 8)")
 
     @model_serializer(mode="wrap")
     def _known_written(self, handler: SerializerFunctionWrapHandler) -> Any:
-        """Only a deferral writes its gates and retry: other results stay as version 6
-        wrote them."""
+        """Only a deferral writes its gates and retry, and only a known actor its `by`:
+        other results stay as version 6 wrote them."""
         data = handler(self)
         if isinstance(data, dict):
             if not data.get("gates"):
                 data.pop("gates", None)
-            if data.get("retry") is None:
-                data.pop("retry", None)
+            for key in ("retry", "by"):
+                if data.get(key) is None:
+                    data.pop(key, None)
         return data
 
 
@@ -199,23 +256,26 @@ class HistoryEntry(BaseModel):
         default=None, description="which apply wrote it (the record's serial then): the "
         "entries of one apply are one set; written only when known (an entry from before "
         "several apps is a set of its own)")
+    by: Actor | None = Field(
+        default=None, description="who asked for the apply that wrote it (None: not "
+        "recorded, an lpam before version 8); written only when known")
 
     @model_serializer(mode="wrap")
     def _known_written(self, handler: SerializerFunctionWrapHandler) -> Any:
         data = handler(self)
-        for key in ("resources", "apply"):
+        for key in ("resources", "apply", "by"):
             if isinstance(data, dict) and data.get(key, ()) is None:
                 del data[key]
         return data
 
     @classmethod
     def of(cls, app: AppRecord, *, time: str, result: ApplyResult,
-           apply: int | None = None) -> HistoryEntry:
+           apply: int | None = None, by: Actor | None = None) -> HistoryEntry:
         return cls(generation=app.generation, app=app.name, repository=app.repository,
                    commit=app.commit, path=app.path, tree=app.tree, params=dict(app.params),
                    command=app.command, launch=app.launch, service=app.service,
                    user=app.user, time=time, result=result, resources=app.resources,
-                   apply=apply)
+                   apply=apply, by=by)
 
     def installed(self) -> AppRecord:
         """This generation as the installed app it was (what a rollback returns to)."""
@@ -294,7 +354,7 @@ class Cutover(BaseModel):
 class StateRecord(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    version: Literal[7] = 7
+    version: Literal[8] = 8
     lineage: str | None = None
     serial: int = 0
     repositories: list[RepositoryRecord] = Field(default_factory=list)

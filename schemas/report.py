@@ -20,7 +20,7 @@ from schemas.bluetooth import BleService
 from schemas.fleet import PublishedApp
 from schemas.override import LocalOverride
 from schemas.plan import Change
-from schemas.record import AppStatus, Cutover, LastResult
+from schemas.record import Actor, AppStatus, Cutover, LastResult
 
 REPORT_VERSION: Literal[1] = 1
 NO_SERVICE = "none"  # LPAM's table and the phone: an app that names no service
@@ -179,6 +179,8 @@ class LastApplyView(_View):
                              "were closed")
     retry: str | None = Field(default=None, description="deferred: when the agent's next "
                               "pass tries again (None: the next `lpam apply` does)")
+    by: Actor | None = Field(default=None, description="who asked for it (None: not "
+                             "recorded)")
     shown: str = Field(description="the last apply as it stands now, said")
 
 

@@ -11,6 +11,8 @@ way bluetoothd relays one: `ReadValue`/`WriteValue` with the phone's device path
 options, `StartNotify`, and the `PropertiesChanged` notifications collected per
 characteristic UUID. `restart` drops the connection and comes back as a new bluetoothd
 that has forgotten every registration, as `systemctl restart bluetooth` would.
+The phones it knows (`devices`) have device objects whose `org.bluez.Device1` properties
+(Address, Name, Alias) it serves as BlueZ does.
 `pause` makes it a busy bluetoothd: it takes that long before reading a registration's
 objects back, and again between taking the registration and answering, so that a test can
 stop lpam inside either window.
@@ -328,6 +330,7 @@ def bond(double: BluezDouble, path: str, name: str | None = None) -> Device:
     """Make the phone at `path` one that has paired and bonded with the car before."""
     device = double.devices.setdefault(path, Device(address_of(path), name))
     device.paired = device.bonded = True
+    device.name = name if name is not None else device.name
     return device
 
 
@@ -413,6 +416,8 @@ def _device_props(double: BluezDouble, path: str) -> dict[str, Variant] | None:
              "Paired": Variant("b", device.paired), "Bonded": Variant("b", device.bonded)}
     if device.name is not None:
         props["Name"] = Variant("s", device.name)
+    # BlueZ's Alias: the name, else the address with dashes (doc/org.bluez.Device.rst)
+    props["Alias"] = Variant("s", device.name or device.address.replace(":", "-"))
     return props
 
 

@@ -21,6 +21,9 @@ What counts as a change (`essentials`), exactly:
   a car upgraded to an lpam that knows several apps publishes nothing new for it);
 - a local override (a phone's or libpanda-app-manager's edit): who, since when, how many
   edits.
+- the last change the car's history records (`last_change`): when, what it made current,
+  how it ended and who asked for it — counted only once there is one, so a car with no
+  history publishes nothing new for it.
 
 Not counted: the times of the passes and their list (every pass adds one), and the last
 publication itself.
@@ -60,9 +63,10 @@ from pydantic import ValidationError
 
 from reconciler.base.errors import ConfigError
 from schemas.agent import AgentStatus, Publication
-from schemas.fleet import CarStatus, PublishedApp
+from schemas.fleet import CarStatus, LastChange, PublishedApp
 from schemas.kinds import DocumentKind
 from schemas.override import LocalOverride
+from schemas.record import HistoryEntry, history_sets
 
 STATUS_FILE = "status.json"
 """The file a car publishes on `status/<vehicle>`."""
@@ -85,8 +89,20 @@ def _several(apps: Sequence[PublishedApp]) -> list[dict[str, Any]] | None:
     return [a.model_dump(mode="json") for a in apps]
 
 
+def last_change(history: Sequence[HistoryEntry]) -> LastChange | None:
+    """The newest set of the car's history (the apps one apply made current, or rolled
+    back) as the fleet sees it, and who asked for it; None before any change."""
+    sets = history_sets(list(history))
+    if not sets:
+        return None
+    newest = sets[-1]
+    return LastChange(time=newest[0].time, result=newest[0].result,
+                      apps=[f"{e.app}@{e.generation}" for e in newest], by=newest[0].by)
+
+
 def essentials(status: AgentStatus, apps: Sequence[PublishedApp],
-               override: LocalOverride | None = None) -> dict[str, Any]:
+               override: LocalOverride | None = None,
+               change: LastChange | None = None) -> dict[str, Any]:
     """What of this status counts as a change: see the module docstring. `apps`: every
     installed app, in the order they were installed (the first is `app`)."""
     last = status.last_attempt
@@ -108,13 +124,16 @@ def essentials(status: AgentStatus, apps: Sequence[PublishedApp],
     several = _several(apps)
     if several is not None:
         found["apps"] = several
+    if change is not None:
+        found["last_change"] = change.model_dump(mode="json")
     return found
 
 
 def fingerprint(status: AgentStatus, apps: Sequence[PublishedApp],
-                override: LocalOverride | None = None) -> str:
+                override: LocalOverride | None = None,
+                change: LastChange | None = None) -> str:
     """A digest of the essentials: equal exactly when nothing that counts changed."""
-    text = json.dumps(essentials(status, apps, override), sort_keys=True,
+    text = json.dumps(essentials(status, apps, override, change), sort_keys=True,
                       separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
@@ -148,13 +167,15 @@ def keeps_parent(length: int, bound: int = HISTORY) -> bool:
 
 
 def status_file(status: AgentStatus, apps: Sequence[PublishedApp],
-                override: LocalOverride | None = None) -> bytes:
+                override: LocalOverride | None = None,
+                change: LastChange | None = None) -> bytes:
     """The file a car publishes: its agent's status, what the fleet sees of its app (the
-    first installed) and, when several are installed, of every app, and a local override
-    in force. A car with one app or none writes no `apps`: its file is what it was."""
+    first installed) and, when several are installed, of every app, a local override
+    in force, and its last change with who asked for it. A car with one app or none
+    writes no `apps`: its file is what it was."""
     several = list(apps) if len(apps) > 1 else []
     document = CarStatus(agent=status, app=apps[0] if apps else None, override=override,
-                         apps=several)
+                         apps=several, last_change=change)
     body = document.model_dump(mode="json", exclude=set() if several else {"apps"})
     return (json.dumps(body, indent=2, sort_keys=True) + "\n").encode("utf-8")
 

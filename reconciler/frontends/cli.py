@@ -407,11 +407,13 @@ def _machine(args: argparse.Namespace, layout: Layout) -> Machine:
 
 
 def _options(args: argparse.Namespace, **more: Any) -> ApplyOptions:
-    """The run options a command was given (each use case supplies its own defaults)."""
+    """The run options a command was given (each use case supplies its own defaults), and
+    who gave it: the user at this terminal (workflow/actor.py)."""
+    from reconciler.workflow.actor import user
     from reconciler.workflow.applying import ApplyOptions
 
     return ApplyOptions(lock_timeout=args.lock_timeout, script_timeout=args.script_timeout,
-                        resume=again(args), **more)
+                        resume=again(args), by=user("lpam"), **more)
 
 
 def _ask(args: argparse.Namespace, question: str, *, what: str, verb: str) -> bool:
@@ -571,16 +573,18 @@ def cmd_history(args: argparse.Namespace, layout: Layout) -> int:
 
 
 HISTORY_HEADER = ("Now", "Time", "App", "Generation", "Repository", "Commit", "Result",
-                  "Params")
+                  "By", "Params")
 
 
 def history_lines(made: Sequence[Made]) -> list[str]:
     """`lpam history` as a table: a header, then each generation made current, oldest
     first, `*` in the first column for what is installed now. Every column is as wide as
     its widest cell (a long repository name no longer shifts the rest of its row); with
-    several apps, a blank line between the sets of apps, one block per apply."""
+    several apps, a blank line between the sets of apps, one block per apply. `By`: who
+    asked for the apply (`-`: not recorded, an lpam before state record 8)."""
     rows = [["*" if m.current else "", m.entry.time, m.entry.app, m.entry.generation,
              m.entry.repository, m.entry.commit[:12], m.entry.result,
+             m.entry.by.shown if m.entry.by is not None else "-",
              " ".join(f"{k}={v}" for k, v in sorted(m.entry.params.items())) or "-"]
             for m in made]
     header, *lines = columns(HISTORY_HEADER, [[printable(c) for c in r] for r in rows])

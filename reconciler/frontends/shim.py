@@ -238,9 +238,11 @@ def _operate(machine: Machine, flag: str) -> None:
 
 
 def _options() -> ApplyOptions:
+    """lpam's defaults, and who asks: the user who ran this command (workflow/actor.py)."""
+    from reconciler.workflow.actor import user
     from reconciler.workflow.applying import ApplyOptions
 
-    return ApplyOptions()
+    return ApplyOptions(by=user(PROG))
 
 
 def _report() -> Report:

@@ -89,7 +89,9 @@ def _footer(report: StatusReport) -> list[str]:
                                f"by an apply that did not succeed; {runs}"))
     lines += [printable(f"Held: {h.what}; it ends {h.ends}.") for h in report.holds]
     if report.last_apply is not None:
-        lines.append(printable(f"Last apply: {report.last_apply.shown}"))
+        by = report.last_apply.by  # who asked for it (issue 31), when the record says
+        lines.append(printable(f"Last apply: {report.last_apply.shown}"
+                               + (f" (asked by {by.shown})" if by is not None else "")))
     return lines + _cutover(report)
 
 

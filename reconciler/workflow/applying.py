@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from reconciler.workflow.followed import Followed
     from schemas.desired import DesiredState
     from schemas.plan import Plan
-    from schemas.record import AppRecord, DesiredRef, StateRecord
+    from schemas.record import Actor, AppRecord, DesiredRef, StateRecord
 
 
 @dataclass(frozen=True)
@@ -38,6 +38,8 @@ class ApplyOptions:
     wait: float = 0.0  # seconds the cutover may wait for closed gates to open
     resume: str = "lpam apply"  # the command that resumes it, as the user would type it
     retry_after: float | None = None  # the agent's next pass tries a deferral again then
+    # who asks (workflow/actor.py): written on what the change records; None: not known
+    by: Actor | None = None
 
     def lock_wait(self, default: float = LOCK_TIMEOUT) -> float:
         """How long to wait for the apply lock: `--lock-timeout`, else `default`."""
@@ -80,7 +82,7 @@ def apply(machine: Machine, path: Path, desired: DesiredState, *, options: Apply
                             hint="fetch them first (`lpam sync --fetch-only` where there is "
                             "network, or a bundle); nothing was changed")
         if not made.steps and not finishes_rollback(made):
-            _settle(machine, made, desired_ref(desired, str(path)))
+            _settle(machine, made, desired_ref(desired, str(path)), by=options.by)
             return Applied(0, standing(machine))
         if not confirm(made):
             return Applied(0, standing(machine), cancelled=True)
@@ -123,7 +125,8 @@ def _end_override(machine: Machine, options: ApplyOptions, report: Report) -> Fo
     return applied_desired(machine)
 
 
-def _settle(machine: Machine, made: Plan, desired: DesiredRef) -> None:
+def _settle(machine: Machine, made: Plan, desired: DesiredRef, *,
+            by: Actor | None) -> None:
     """Nothing to do: a deferred, interrupted or cut-off apply before this one no longer
     applies (engine/execution/recovery.py `settled`), and its journal ends with it."""
     import uuid
@@ -134,7 +137,7 @@ def _settle(machine: Machine, made: Plan, desired: DesiredRef) -> None:
 
     now = machine.clock()
     record = settled(read_record(machine.layout), now=now.isoformat(timespec="seconds"),
-                     desired=desired)
+                     desired=desired, by=by)
     if record is None:
         return
     try:
@@ -194,7 +197,7 @@ def execute_plan(machine: Machine, store: GitStore, made: Plan, lock: Lock, *,
                                script_timeout=options.script_timeout, report=report,
                                gate=gate, gate_wait=options.wait, listener=listener,
                                resume=options.resume, desired=desired,
-                               retry_after=options.retry_after)
+                               retry_after=options.retry_after, by=options.by)
     execute(made, ctx, progress=lambda text: report(Progress(text)),
             keep=options.keep_generations)
     return Applied(len(made.steps), standing(machine, ctx.record.apps), log)

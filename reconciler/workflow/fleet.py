@@ -5,9 +5,10 @@ repository when it changed and at least every heartbeat (workflow/sync.py `publi
 reconciler/core/publication.py). In any clone of that repository, after a fetch, this reads
 those branches and says per vehicle which file of the repository it follows, which
 revision it applied against the branch the cars follow, its apps (a car may run several:
-each is named, with whether it runs), how its last pass ended, and how old its last report
-is — no server, no database, nothing but refs and one small file per car. The age is
-measured against the clock the caller passes in.
+each is named, with whether it runs), who asked for its last change (a phone, a user, the
+agent), how its last pass ended, and how old its last report is — no server, no
+database, nothing but refs and one small file per car. The age is measured against the
+clock the caller passes in.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ class Vehicle:
     last_seen: str  # when the car last reported (its status commit's time)
     override: str | None = None  # a local override in force: "phone since <time>"
     apps: tuple[dict[str, Any], ...] = ()  # every installed app reported (`app` the first)
+    changed_by: str | None = None  # who asked for the car's last change (None: not known)
 
 
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
@@ -75,7 +77,9 @@ def _row(vehicle: str, status: CarStatus, tip: str | None, when: datetime) -> Ve
         reason=None if last is None else last.reason, last_seen=_seen(when),
         override=None if status.override is None else
         f"{status.override.by} since {status.override.since}",
-        apps=tuple(a.model_dump(mode="json") for a in status.installed()))
+        apps=tuple(a.model_dump(mode="json") for a in status.installed()),
+        changed_by=None if status.last_change is None or status.last_change.by is None
+        else status.last_change.by.shown)
 
 
 YES_NO = {True: "yes", False: "no", None: "?"}
@@ -125,13 +129,13 @@ def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
     if not rows:
         return ("No vehicle has published its status yet (no status/* branches: fetch, or "
                 "check that the cars may push to this repository).")
-    header = ("Vehicle", "Follows", "Applied", "Current", "App", "Running", "Last pass",
-              "Last report")
+    header = ("Vehicle", "Follows", "Applied", "Current", "App", "Running", "Changed by",
+              "Last pass", "Last report")
     cells = [tuple(printable(v)[:60] for v in (
         r.vehicle, r.follows or "?", (r.applied or "none")[:12],
         YES_NO[r.up_to_date],
         _apps(r) + (f" (local override: {r.override})" if r.override else ""),
-        _running(r),
+        _running(r), r.changed_by or "-",
         (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""),
         ago(age(r, now)))) for r in rows]
     lines = columns(header, cells)

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from reconciler.engine.execution.lock import Lock
     from reconciler.engine.execution.ports import DependencyPorts, Gate, Listener, Services
     from schemas.desired import DesiredState
-    from schemas.record import DesiredRef
+    from schemas.record import Actor, DesiredRef
 
 
 def now() -> datetime:
@@ -133,7 +133,8 @@ class Machine:
                 report: Report, gate: Gate | None = None, gate_wait: float = 0.0,
                 listener: Listener | None = None, resume: str | None = None,
                 desired: DesiredRef | None = None,
-                retry_after: float | None = None) -> tuple[Context, Path]:
+                retry_after: float | None = None,
+                by: Actor | None = None) -> tuple[Context, Path]:
         """What the steps of one run may touch, and the log of its scripts and commands."""
         from reconciler.adapters.catkin import find_underlay
         from reconciler.adapters.folders import DiskFolders
@@ -152,6 +153,7 @@ class Machine:
             gate=gate, gate_wait=gate_wait, listener=listener,
             command=resume or f"lpam {command}", desired=desired, underlay=find_underlay,
             folders=DiskFolders(layout=self.layout, store=store), retry_after=retry_after,
+            by=by,
         )
         return ctx, log
 

@@ -19,11 +19,15 @@ phase fails on its own, and never at the running app's expense:
 Where the source's revision comes from — the network or a bundle file — is a
 `DesiredStateSource` (workflow/source.py, with the relative `url:` paths of a desired
 state resolved against the source repository's URL, as git resolves a submodule's).
+
+What a pass applies is recorded as the agent's (workflow/actor.py), with the fleet
+revision it applied: whoever started the pass (the agent's unit, `lpam sync` at a
+terminal), the change is the fleet's.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,6 +43,7 @@ from reconciler.base.errors import (
     TrustError,
 )
 from reconciler.engine.records.state import read_override
+from reconciler.workflow.actor import agent
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.bundle import BundleFile
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
@@ -141,8 +146,8 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
                                                "this revision failed before"))
     chosen = lambda: _desired(machine, config, vehicle, revision,  # noqa: E731
                               keep=frozenset(filter(None, [status.applied_revision])))
-    done = _applied(machine, chosen, revision, options=options, report=report,
-                    local=offline is not None)
+    done = _applied(machine, chosen, revision, options=replace(options, by=agent(revision)),
+                    report=report, local=offline is not None)
     if done.result in ("applied", "nothing to do"):
         status = status.model_copy(update={"applied_revision": revision})
     return _record(machine, status, done)
@@ -188,7 +193,8 @@ def _overridden(machine: Machine, local: LocalOverride, revision: str, *,
     report(Note(why))
     return _applied(machine, lambda: Followed.of(load_desired_document(path),
                                                  path.resolve().parent),
-                    None, options=options, report=report, local=offline, why=why)
+                    None, options=replace(options, by=agent(None)), report=report,
+                    local=offline, why=why)
 
 
 def _trusted(machine: Machine, config: AgentConfig, revision: str) -> str:
@@ -212,12 +218,14 @@ STATUS_PREFIX = "status/"
 def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     """Push this vehicle's status to `status/<vehicle>` of the source when it is due
     (reconciler/core/publication.py: changed, or the heartbeat), so that `lpam fleet status` in
-    any clone shows the whole fleet from git alone; an unchanged status costs no connection
-    and no commit. The branch holds at most `HISTORY` commits. A source that refuses pushes
-    (a read-only mirror, a token without write access) costs a note, nothing more: the car
-    keeps working and its status stays local."""
+    any clone shows the whole fleet from git alone, and who made each car's last change;
+    an unchanged status costs no connection and no commit. The branch holds at most
+    `HISTORY` commits. A source that refuses pushes (a read-only mirror, a token without
+    write access) costs a note, nothing more: the car keeps working and its status stays
+    local."""
     from reconciler.base.atomic import write_atomic
-    from reconciler.core.publication import due, fingerprint, status_file
+    from reconciler.core.publication import due, fingerprint, last_change, status_file
+    from reconciler.engine.records.state import read_record
     from reconciler.report import status as machine_status
 
     own = read_status(machine)
@@ -227,7 +235,8 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     every = [a.published() for a in seen.installed]
     now = machine.clock()
     local = read_override(machine.layout)
-    mark = fingerprint(own, every, local)
+    change = last_change(read_record(machine.layout).history)
+    mark = fingerprint(own, every, local, change)
     why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
     if why is None:
         return
@@ -235,7 +244,7 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     result: Published = "pushed"
     reason = None
     try:
-        _push(machine, config, branch, status_file(own, every, local),
+        _push(machine, config, branch, status_file(own, every, local, change),
               when=int(now.timestamp()), report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:

@@ -30,7 +30,7 @@ from reconciler.engine.execution.lock import apply_lock
 from tests.bluez_double import NOT_PAIRED, BluezDouble, PhoneError, bond, until
 from tests.dbus import needs_dbus_daemon, private_bus
 from tests.gitserver import GitDaemon, RepoBuilder
-from tests.integration.apps import TICKER, FieldCar, applied, field_repos
+from tests.integration.apps import TICKER, FieldCar, Lpam, applied, field_repos
 from tests.privzone_client import TEMPERATURE, Phone
 
 pytestmark = needs_dbus_daemon
@@ -76,7 +76,7 @@ def bus(tmp_path: Path) -> Iterator[str]:
 
 
 @contextlib.contextmanager
-def ble(car: FieldCar, bus: str, *options: str) -> Iterator[subprocess.Popen[str]]:
+def ble(car: FieldCar | Lpam, bus: str, *options: str) -> Iterator[subprocess.Popen[str]]:
     """`lpam ble` on the private bus; SIGTERM by its pid when the block ends (if alive)."""
     log = open(car.root / "ble.log", "w")  # noqa: SIM115 - closed below
     proc = subprocess.Popen(

@@ -73,7 +73,7 @@ def test_the_published_status_shows_the_override(car: Lpam, fleet: RepoBuilder) 
     published = subprocess.run(["git", "show", "status/rav4-07:status.json"], cwd=fleet.bare,
                                capture_output=True, text=True, timeout=30, check=True)
     body = json.loads(published.stdout)
-    assert body["version"] == 2 and body["app"]["name"] == "beta"
+    assert body["version"] == 3 and body["app"]["name"] == "beta"
     assert body["override"]["by"] == "libpanda-app-manager"
     clone = car.root.parent / "clone"
     subprocess.run(["git", "clone", "-q", "--mirror", str(fleet.bare), str(clone)],

@@ -48,8 +48,9 @@ HEADER = "Repository\tBranch\tApp\tService\tEnabled\tRunning\tDescription"
 class Shim(FieldCar):
     """The real `libpanda-app-manager`, in a subprocess, on LPAM_ROOT=root."""
 
-    def __call__(self, *args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-        env = {**os.environ, "LPAM_ROOT": str(self.root)}
+    def __call__(self, *args: str, timeout: float = 120,
+                 env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+        env = {**(os.environ if env is None else env), "LPAM_ROOT": str(self.root)}
         return subprocess.run([sys.executable, "-m", "reconciler.frontends.shim", *args],
                               capture_output=True, text=True, timeout=timeout, env=env)
 
@@ -168,6 +169,46 @@ def test_i_switches_the_app_and_it_really_runs(shim: Shim) -> None:
         [("ticker", "no", "no"), ("tocker", "yes", "yes"), ("crasher", "no", "no")]
     # the same app again: nothing to do, success
     assert shim("-i", "tocker").returncode == 0 and shim.desired.read_text() == text
+
+
+def login_name() -> str:
+    """The user's name as they know it: their login, else their account."""
+    import pwd
+
+    try:
+        return os.getlogin()
+    except OSError:  # no terminal here (a CI runner)
+        return pwd.getpwuid(os.getuid()).pw_name
+
+
+def test_history_names_the_user_who_made_each_change(shim: Shim) -> None:
+    """The shim and the CLI record who ran them (issue 31): `SUDO_USER` under sudo (a
+    car's lpam runs as root), else the login name — in `lpam history` (its By column and
+    `--json`) and in status's last apply."""
+    unsudo = {k: v for k, v in os.environ.items() if k != "SUDO_USER"}
+    assert shim("-itocker", env={**unsudo, "SUDO_USER": "alice"}).returncode == 0
+    assert shim("-iticker", env=unsudo).returncode == 0
+    shim.desired.write_text(shim.desired.read_text().replace("ticker", "tocker"))
+    done = subprocess.run([sys.executable, "-m", "reconciler", "--root", str(shim.root),
+                           "apply", "--yes"], capture_output=True, text=True, timeout=120,
+                          env={**unsudo, "SUDO_USER": "carol"})
+    assert done.returncode == 0, done.stderr
+    entries = json.loads(shim.lpam("history", "--json").stdout)
+    first = os.environ.get("SUDO_USER") or login_name()  # the fixture's `lpam apply`
+    assert [(e["app"], e["by"]) for e in entries] == [
+        ("ticker", {"kind": "user", "id": first, "via": "lpam"}),
+        ("tocker", {"kind": "user", "id": "alice", "via": "libpanda-app-manager"}),
+        ("ticker", {"kind": "user", "id": login_name(), "via": "libpanda-app-manager"}),
+        ("tocker", {"kind": "user", "id": "carol", "via": "lpam"}),
+    ]
+    header, *rows = shim.lpam("history").stdout.splitlines()
+    at = header.index("By")
+    assert [row[at:].split("  ")[0] for row in rows] == [
+        f"{first} (lpam)", "alice (libpanda-app-manager)",
+        f"{login_name()} (libpanda-app-manager)", "carol (lpam)"]
+    assert shim.lpam.status()["last_apply"]["by"] == \
+        {"kind": "user", "id": "carol", "via": "lpam"}
+    assert "(asked by carol (lpam))" in shim.lpam("status").stdout
 
 
 def test_refusals_change_nothing_and_exit_non_zero(shim: Shim) -> None:

@@ -13,13 +13,14 @@ from typing import Any
 import pytest
 
 import migrations
-from migrations import car_status_v0_to_v1
+from migrations import car_status_v0_to_v1, car_status_v2_to_v3
 from reconciler.base.errors import ConfigError, VersionError
 from reconciler.base.loading import load
-from reconciler.core.publication import fingerprint, read_status_file, status_file
+from reconciler.core.publication import fingerprint, last_change, read_status_file, status_file
 from schemas.agent import AgentStatus, Attempt
 from schemas.fleet import CarStatus, PublishedApp
 from schemas.override import LocalOverride
+from schemas.record import Actor, HistoryEntry
 
 FIXTURES = Path(migrations.__file__).parent / "fixtures" / "car-status" / "v0_to_v1"
 WHERE = Path("status/rav4-07/status.json")
@@ -32,7 +33,7 @@ APP = PublishedApp(name="alpha", generation="0123456789ab", status="installed", 
 def test_what_a_car_publishes_reads_back() -> None:
     content = status_file(STATUS, [APP])
     body = json.loads(content)
-    assert body["version"] == 2 and set(body["app"]) == {"name", "generation", "status",
+    assert body["version"] == 3 and set(body["app"]) == {"name", "generation", "status",
                                                           "running"}
     assert body["agent"] == STATUS.model_dump(mode="json")  # the agent's part as before
     read = read_status_file(content, where=WHERE)
@@ -47,6 +48,47 @@ def test_a_local_override_is_published_and_read_back() -> None:
     read = read_status_file(status_file(STATUS, [APP], local), where=WHERE)
     assert read is not None and read.override == local
     assert fingerprint(STATUS, [APP], local) != fingerprint(STATUS, [APP])  # a change is news
+
+
+def entry(app: str, time: str, apply: int, by: Actor | None) -> HistoryEntry:
+    return HistoryEntry(generation=f"{app}-gen", app=app, repository="lab/apps",
+                        commit="c" * 40, path=app, tree="t" * 40, time=time,
+                        result="applied", apply=apply, by=by)
+
+
+def test_the_last_change_and_who_made_it_are_published_and_read_back() -> None:
+    """Issue 31: the fleet sees who put the car's apps in place — the newest set of its
+    history, with the phone (or user, or agent) that asked for it."""
+    pixel = Actor(kind="phone", id="AA:BB:CC:DD:EE:01", name="Pixel 7")
+    history = [entry("alpha", "2026-11-26T10:00:00+00:00", 4, Actor(kind="agent", id="c" * 40)),
+               entry("alpha", "2026-11-27T09:00:00+00:00", 7, pixel),
+               entry("rec", "2026-11-27T09:00:00+00:00", 7, pixel)]
+    change = last_change(history)
+    assert change is not None
+    body = json.loads(status_file(STATUS, [APP], None, change))
+    assert body["last_change"] == {
+        "time": "2026-11-27T09:00:00+00:00", "result": "applied",
+        "apps": ["alpha@alpha-gen", "rec@rec-gen"],
+        "by": {"kind": "phone", "id": "AA:BB:CC:DD:EE:01", "name": "Pixel 7"}}
+    read = read_status_file(status_file(STATUS, [APP], None, change), where=WHERE)
+    assert read is not None and read.last_change == change
+    assert fingerprint(STATUS, [APP], None, change) != \
+        fingerprint(STATUS, [APP], None, last_change(history[:1]))  # who changed is news
+    assert last_change([]) is None
+    assert fingerprint(STATUS, [APP], None, None) == fingerprint(STATUS, [APP])
+
+
+@pytest.mark.parametrize("before", sorted((FIXTURES.parent / "v2_to_v3").glob("*.before.yaml")),
+                         ids=lambda p: p.name)
+def test_car_status_v2_to_v3_names_no_one_and_validates(before: Path) -> None:
+    """A version-2 file named no one: `last_change` is null, nothing guessed."""
+    data = load(before).data
+    original = copy.deepcopy(data)
+    after = before.with_name(before.name.replace(".before.", ".after."))
+    assert car_status_v2_to_v3.upgrade(data) == load(after).data
+    assert data == original, "a step must not modify its input"
+    read = CarStatus.model_validate(migrations.upgrade("car-status", data, path=before))
+    assert read.last_change is None and read.version == 3
 
 
 def test_a_version_1_file_has_no_override() -> None:
@@ -84,7 +126,7 @@ def test_a_damaged_status_says_where(body: dict[str, Any], said: str) -> None:
 
 def test_a_newer_lpams_status_says_so() -> None:
     with pytest.raises(VersionError, match="newer lpam"):
-        read_status_file(json.dumps({"version": 3, "agent": {}}).encode(), where=WHERE)
+        read_status_file(json.dumps({"version": 4, "agent": {}}).encode(), where=WHERE)
 
 
 def pairs() -> list[tuple[Path, Path]]:

@@ -37,7 +37,7 @@ def test_the_table_shows_the_file_each_car_follows_and_the_age_of_its_report() -
             row("rav4-09", seen=NOW - timedelta(days=4), follows=None)]  # an older lpam's
     lines = as_table(TIP, rows, now=NOW).splitlines()
     assert lines[0].split() == ["Vehicle", "Follows", "Applied", "Current", "App", "Running",
-                                "Last", "pass", "Last", "report"]
+                                "Changed", "by", "Last", "pass", "Last", "report"]
     assert "vehicles/rav4-01.yaml" in lines[1] and lines[1].endswith("3 h ago")
     assert "desired-state.yaml" in lines[2] and lines[2].endswith("12 min ago")
     assert lines[3].split()[1] == "?" and lines[3].endswith("4 d ago")

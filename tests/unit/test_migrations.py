@@ -24,6 +24,7 @@ from migrations import (
     state_record_v4_to_v5,
     state_record_v5_to_v6,
     state_record_v6_to_v7,
+    state_record_v7_to_v8,
     upgrade,
 )
 from migrations.step import MigrationError
@@ -48,11 +49,13 @@ STEP_FIXTURES = {
     ("state-record", "4"): FIXTURES / "state-record" / "v4_to_v5",
     ("state-record", "5"): FIXTURES / "state-record" / "v5_to_v6",
     ("state-record", "6"): FIXTURES / "state-record" / "v6_to_v7",
+    ("state-record", "7"): FIXTURES / "state-record" / "v7_to_v8",
     ("agent-status", "1"): FIXTURES / "agent-status" / "v1_to_v2",
     ("plan", "1"): FIXTURES / "plan" / "v1_to_v2",
     ("generation-meta", "0"): FIXTURES / "generation-meta" / "v0_to_v1",
     ("car-status", "0"): FIXTURES / "car-status" / "v0_to_v1",
     ("car-status", "1"): FIXTURES / "car-status" / "v1_to_v2",
+    ("car-status", "2"): FIXTURES / "car-status" / "v2_to_v3",
 }
 PATH = Path("doc.yaml")
 
@@ -69,6 +72,7 @@ RECORD_V4_PAIRS = pairs(STEP_FIXTURES[("state-record", "3")])
 RECORD_V5_PAIRS = pairs(STEP_FIXTURES[("state-record", "4")])
 RECORD_V6_PAIRS = pairs(STEP_FIXTURES[("state-record", "5")])
 RECORD_V7_PAIRS = pairs(STEP_FIXTURES[("state-record", "6")])
+RECORD_V8_PAIRS = pairs(STEP_FIXTURES[("state-record", "7")])
 AGENT_STATUS_V2_PAIRS = pairs(STEP_FIXTURES[("agent-status", "1")])
 PLAN_V2_PAIRS = pairs(STEP_FIXTURES[("plan", "1")])
 META_V1_PAIRS = pairs(STEP_FIXTURES[("generation-meta", "0")])
@@ -207,6 +211,30 @@ def test_state_record_v6_to_v7_matches_fixture_and_validates(before: Path, after
 def test_state_record_v6_to_v7_refuses_a_last_apply_that_is_no_mapping() -> None:
     with pytest.raises(MigrationError):
         state_record_v6_to_v7.upgrade({"version": 6, "last_apply": "in progress"})
+
+
+@pytest.mark.parametrize(("before", "after"), RECORD_V8_PAIRS, ids=lambda p: p.name)
+def test_state_record_v7_to_v8_matches_fixture_and_validates(before: Path, after: Path) -> None:
+    """A version-7 record does not know who made its changes: nothing is guessed (no
+    `by` anywhere), and it is written back exactly as version 7 wrote it, but for its
+    version."""
+    data = read(before)
+    original = copy.deepcopy(data)
+    assert state_record_v7_to_v8.upgrade(data) == read(after)
+    assert data == original, "a step must not modify its input"
+    record = StateRecord.model_validate(upgrade("state-record", data, path=before))
+    assert all(entry.by is None for entry in record.history)
+    assert record.last_apply is None or record.last_apply.by is None
+    written = record.model_dump(mode="json")
+    assert written["history"] == data["history"], "an unknown actor is not written"
+    assert "by" not in (written["last_apply"] or {})
+
+
+@pytest.mark.parametrize("history", ["applied", [1], [None]])
+def test_state_record_v7_to_v8_refuses_a_history_that_is_no_list_of_mappings(
+        history: Any) -> None:
+    with pytest.raises(MigrationError):
+        state_record_v7_to_v8.upgrade({"version": 7, "history": history})
 
 
 @pytest.mark.parametrize(("before", "after"), AGENT_STATUS_V2_PAIRS, ids=lambda p: p.name)

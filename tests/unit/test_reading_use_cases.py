@@ -15,7 +15,7 @@ from reconciler.workflow.importing import import_legacy
 from reconciler.workflow.logs import Shown, new_output, seen_up_to
 from reconciler.workflow.machine import Machine
 from schemas.operator import OperatorAction
-from schemas.record import HistoryEntry
+from schemas.record import Actor, HistoryEntry
 from tests.records import sole
 from tests.unit.test_gate_execution import running_x
 
@@ -114,19 +114,55 @@ def test_history_is_a_table_whose_columns_stay_put(
 
     world = running_x(tmp_path)
     record = read_record(world.layout)
-    now = HistoryEntry.of(sole(record), time="2026-11-27T10:00:00+00:00", result="applied")
+    now = HistoryEntry.of(sole(record), time="2026-11-27T10:00:00+00:00", result="applied",
+                          by=Actor(kind="phone", id="AA:BB:CC:DD:EE:FF", name="Pixel 7"))
     other = now.model_copy(update={"generation": "0123456789ab-cdef0123",
                                    "time": "2026-11-26T09:00:00+00:00",
                                    "repository": "a-much-longer-repository-name",
-                                   "params": {"RATE_HZ": "10"}})
+                                   "params": {"RATE_HZ": "10"},
+                                   "by": Actor(kind="user", id="alice", via="lpam")})
     write_record(world.layout, record.model_copy(update={"history": [other, now]}))
     monkeypatch.setattr("signal.signal", lambda *args: None)
     assert cli.main(["--root", str(world.layout.root), "history"]) == 0
     header, *rows = capsys.readouterr().out.splitlines()
     assert header.split() == ["Now", "Time", "App", "Generation", "Repository", "Commit",
-                              "Result", "Params"]
-    for name in ("Time", "App", "Generation", "Repository", "Commit", "Result", "Params"):
+                              "Result", "By", "Params"]
+    for name in ("Time", "App", "Generation", "Repository", "Commit", "Result", "By",
+                 "Params"):
         at = header.index(name)
         assert all(row[at - 1] == " " and row[at] != " " for row in rows), (name, rows)
-    assert rows[0].split()[5:] == ["applied", "RATE_HZ=10"]
+    assert rows[0].split()[5:] == ["applied", "alice", "(lpam)", "RATE_HZ=10"]
     assert rows[1].startswith("*") and rows[1].split()[-1] == "-"  # installed now
+    assert "phone AA:BB:CC:DD:EE:FF (Pixel 7)" in rows[1]
+
+
+def test_a_record_from_before_version_8_reads_and_its_history_names_no_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A car upgraded from an lpam that did not record who made a change: its history
+    reads, says `-` under By (nothing is guessed), and a record written again is version
+    8 with the history as it was."""
+    import json
+
+    import migrations
+    from reconciler.base.loading import load
+    from reconciler.frontends import cli
+
+    fixture = Path(migrations.__file__).parent / "fixtures" / "state-record" / "v7_to_v8" / \
+        "deferred-several.before.yaml"
+    old = load(fixture).data
+    layout = Layout(tmp_path)
+    layout.state_record.parent.mkdir(parents=True)
+    layout.state_record.write_text(json.dumps(old))
+    monkeypatch.setattr("signal.signal", lambda *args: None)
+    assert cli.main(["--root", str(tmp_path), "history"]) == 0
+    header, *rows = capsys.readouterr().out.splitlines()
+    at = header.index("By")
+    assert [row[at:].split()[0] for row in rows] == ["-", "-"]
+    assert cli.main(["--root", str(tmp_path), "history", "--json"]) == 0
+    assert [e.get("by") for e in json.loads(capsys.readouterr().out)] == [None, None]
+    record = read_record(layout)
+    assert record.last_apply is not None and record.last_apply.result == "deferred"
+    write_record(layout, record)
+    again = json.loads(layout.state_record.read_text())
+    assert again["version"] == 8 and again["history"] == old["history"]

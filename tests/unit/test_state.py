@@ -27,8 +27,8 @@ def test_empty_machine_then_lineage_and_serial(tmp_path: Path) -> None:
 
 def test_newer_or_corrupt_record_is_refused_by_name(tmp_path: Path) -> None:
     layout = Layout(tmp_path)
-    write_atomic(layout.state_record, json.dumps({"version": 8, "serial": 1}))
-    with pytest.raises(VersionError, match="8"):
+    write_atomic(layout.state_record, json.dumps({"version": 9, "serial": 1}))
+    with pytest.raises(VersionError, match="9"):
         read_record(layout)
     write_atomic(layout.state_record, '{"version": 1,\n  "serial": }')
     with pytest.raises(ConfigError) as info:

@@ -206,7 +206,7 @@ def test_a_car_running_three_apps_publishes_them_and_the_fleet_sees_them() -> No
     apps = published(car("installed"), frozenset({"recorder"}))
     content = status_file(AGENT, apps)
     body = json.loads(content)
-    assert body["version"] == 2 and body["app"]["name"] == "controller"
+    assert body["version"] == 3 and body["app"]["name"] == "controller"
     assert [a["name"] for a in body["apps"]] == ["controller", "recorder", "tracker"]
     read = read_status_file(content, where=WHERE)
     assert read is not None and [a.running for a in read.installed()] == [True, False, True]
@@ -224,7 +224,7 @@ def test_a_car_running_three_apps_publishes_them_and_the_fleet_sees_them() -> No
 def test_a_car_with_one_app_publishes_the_file_it_published_before() -> None:
     [app] = published(car().model_copy(update={"apps": [installed("controller")]}))
     assert set(json.loads(status_file(AGENT, [app]))) == {"version", "agent", "app",
-                                                            "override"}
+                                                            "override", "last_change"}
     assert "apps" not in essentials(AGENT, [app])  # so its fingerprint is what it was
     read = read_status_file(status_file(AGENT, [app]), where=WHERE)
     assert read is not None and [a.name for a in read.installed()] == ["controller"]

@@ -35,6 +35,7 @@ from typing import Any, TypeVar
 from dbus_fast import BusType, Message, MessageType, Variant
 from dbus_fast.aio import MessageBus
 
+from reconciler.adapters.bluez.devices import DEVICE_IFACE, Device, device_of
 from reconciler.adapters.bluez.objects import GattHandler, Objects
 from reconciler.adapters.bluez.shape import Characteristic
 from reconciler.adapters.bluez.tree import ADVERTISEMENT, PROPERTIES_IFACE, ROOT
@@ -53,6 +54,7 @@ MAX_DELAY = 10.0
 # bluetoothd answers RegisterApplication only after it has read the whole tree back
 CALL_TIMEOUT = 15.0
 LEAVE_TIMEOUT = 2.0  # per Unregister* call on stop: bluetoothd may be hung or gone
+DEVICE_TIMEOUT = 2.0  # asking bluetoothd who a phone is: its address alone after that
 
 APPLICATION = "GATT application"
 ADVERTISING = "advertisement"
@@ -135,6 +137,33 @@ class GattServer:
             return
         with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
             loop.call_soon_threadsafe(self.notify, char, value)
+
+    def device(self, path: str | None) -> Device:
+        """The phone at the BlueZ device `path` (its address, and its name when BlueZ
+        knows one: devices.py), asked of bluetoothd. Call from another thread than the
+        loop's (the bridge's worker): it waits for the answer, DEVICE_TIMEOUT at most;
+        without one (no bus, bluetoothd gone or slow, an unknown device) the address the
+        path spells is what is known."""
+        loop, bus = self._loop, self._bus
+        if path is None or loop is None or loop.is_closed() or bus is None:
+            return device_of(path, None)
+        try:
+            future = asyncio.run_coroutine_threadsafe(self._device(bus, path), loop)
+        except RuntimeError:  # the loop closed meanwhile
+            return device_of(path, None)
+        try:
+            return device_of(path, future.result(DEVICE_TIMEOUT + 1))
+        except Exception:  # no answer in time, the bus lost: the path still names it
+            future.cancel()
+            return device_of(path, None)
+
+    async def _device(self, bus: MessageBus, path: str) -> dict[str, Any] | None:
+        msg = Message(destination=BLUEZ, path=path, interface=PROPERTIES_IFACE,
+                      member="GetAll", signature="s", body=[DEVICE_IFACE])
+        reply = await asyncio.wait_for(bus.call(msg), DEVICE_TIMEOUT)
+        if reply is None or reply.message_type is not MessageType.METHOD_RETURN:
+            return None
+        return {str(k): v.value for k, v in reply.body[0].items()}
 
     async def _connect(self, stop: asyncio.Event, delay: _Backoff) -> MessageBus | None:
         where = self._address or "the system bus"

@@ -26,7 +26,7 @@ from reconciler.engine.execution.ports import (
     Store,
 )
 from reconciler.engine.records.state import write_record
-from schemas.record import AppRecord, DesiredRef, StateRecord
+from schemas.record import Actor, AppRecord, DesiredRef, StateRecord
 
 
 @dataclass
@@ -60,6 +60,7 @@ class Context:
     # an adapter (adapters/folders.py), which the engine never names; the caller that
     # chooses adapters gives it.
     folders: AppFolders | None = None
+    by: Actor | None = None  # who asked for this run: on the history and last apply it writes
 
     def dependencies(self) -> DependencyPorts:
         if self.deps is None:  # a caller that plans dependencies must give their ports

@@ -41,6 +41,7 @@ from reconciler.engine.records.state import read_record
 from schemas.enums import StrEnum
 from schemas.plan import Phase, Step
 from schemas.record import (
+    Actor,
     ApplyResult,
     AppRecord,
     Cutover,
@@ -136,7 +137,7 @@ def begun(ctx: Context) -> StateRecord:
     """The record as an apply begins: its result `in progress` (with this process, so one
     that is gone reads as cut off) and the desired state it works toward."""
     last = LastApply(time=ctx.clock().isoformat(timespec="seconds"), result="in progress",
-                     pid=os.getpid(), command=ctx.command)
+                     pid=os.getpid(), command=ctx.command, by=ctx.by)
     return ctx.record.model_copy(update={"last_apply": last,
                                          "desired": ctx.desired or ctx.record.desired})
 
@@ -145,7 +146,7 @@ def interrupted(ctx: Context) -> None:
     """Ctrl-C or SIGTERM: say so in the record (best effort: it is how the apply ended)."""
     last = LastApply(time=ctx.clock().isoformat(timespec="seconds"), result="interrupted",
                      reason="by Ctrl-C or SIGTERM; where it stood is recorded",
-                     command=ctx.command)
+                     command=ctx.command, by=ctx.by)
     with contextlib.suppress(LpamError):
         ctx.save(ctx.record.model_copy(update={"last_apply": last}))
 
@@ -166,13 +167,13 @@ def deferred(ctx: Context, exc: Deferred, *, desired: DesiredRef | None) -> None
     retry = None if ctx.retry_after is None else \
         (now + timedelta(seconds=ctx.retry_after)).isoformat(timespec="seconds")
     last = LastApply(time=now.isoformat(timespec="seconds"), result="deferred",
-                     reason=reason, gates=list(exc.gates), retry=retry)
+                     reason=reason, gates=list(exc.gates), retry=retry, by=ctx.by)
     with contextlib.suppress(LpamError):
         ctx.save(ctx.record.model_copy(update={"last_apply": last, "desired": desired}))
 
 
-def settled(record: StateRecord, *, now: str, desired: DesiredRef | None
-            ) -> StateRecord | None:
+def settled(record: StateRecord, *, now: str, desired: DesiredRef | None,
+            by: Actor | None = None) -> StateRecord | None:
     """The record after an apply that had nothing to do (None: nothing to write). The
     machine matched the desired state in force, so a deferred, interrupted or cut-off
     apply before it no longer applies: status must not keep telling the user to resume
@@ -192,7 +193,7 @@ def settled(record: StateRecord, *, now: str, desired: DesiredRef | None
     return record.model_copy(update={
         "last_apply": LastApply(time=now, result="applied",
                                 reason="nothing was left to do: the machine matched the "
-                                "desired state"),
+                                "desired state", by=by),
         "repositories": repositories,
         "cutover": None,
         "desired": desired or record.desired,
@@ -326,25 +327,29 @@ def hold_after(record: StateRecord, result: ApplyResult,
 def finish(ctx: Context, result: ApplyResult, reason: str | None, *,
            failed: Sequence[AppRecord] = ()) -> None:
     """Record how the apply ended, and the generations it made current (history: the
-    entries of one apply carry its number, a set). A generation enters the history as
+    entries of one apply carry its number, a set, and who asked for it). A generation
+    enters the history as
     applied only once it proved good. The cutover ends with the apply, unless it failed
     mid-way: then the next run still needs it."""
     when = ctx.clock().isoformat(timespec="seconds")
     apply = ctx.record.serial  # one number per apply: its entries are one set
     history = [*ctx.record.history,
-               *(HistoryEntry.of(app, time=when, result="rolled back", apply=apply)
+               *(HistoryEntry.of(app, time=when, result="rolled back", apply=apply,
+                                 by=ctx.by)
                  for app in failed)]
     made = [app for app in ctx.record.apps if app.good]
     last = next((s for s in reversed(history_sets(history)) if s[0].result == "applied"), [])
     if result == "applied" and made and not same_set(last, made):
-        history += [HistoryEntry.of(app, time=when, result="applied", apply=apply)
+        history += [HistoryEntry.of(app, time=when, result="applied", apply=apply,
+                                    by=ctx.by)
                     for app in made]
     repositories = ctx.record.repositories
     if result == "applied":  # what runs now is what these checkouts hold
         repositories = [r.model_copy(update={"applied": r.commit}) for r in repositories]
     ctx.save(ctx.record.model_copy(update={
         "last_apply": LastApply(time=when, result=result, reason=reason,
-                                command=None if result == "applied" else ctx.command),
+                                command=None if result == "applied" else ctx.command,
+                                by=ctx.by),
         "repositories": repositories,
         "history": [e for s in history_sets(history)[-KEEP_SETS:] for e in s],
         "hold": hold_after(ctx.record, result, ctx.desired),

@@ -22,6 +22,7 @@ from reconciler.workflow.applying import ApplyOptions
 from reconciler.workflow.events import Report
 from reconciler.workflow.machine import Machine
 from schemas.plan import Plan
+from schemas.record import Actor
 from schemas.report import StatusReport, Unreadable
 
 PHONE_LOCK_WAIT = 2.0
@@ -43,9 +44,10 @@ class Answer:
     output: Sequence[bytes] = field(default_factory=tuple)
 
 
-def options() -> ApplyOptions:
-    """A phone's apply: the defaults of `lpam apply`, but no long wait for the lock."""
-    return ApplyOptions(lock_timeout=PHONE_LOCK_WAIT, resume="lpam apply")
+def options(by: Actor) -> ApplyOptions:
+    """A phone's apply: the defaults of `lpam apply`, but no long wait for the lock; `by`:
+    the phone that asked (recorded with what it changes)."""
+    return ApplyOptions(lock_timeout=PHONE_LOCK_WAIT, resume="lpam apply", by=by)
 
 
 def reason(exc: LpamError) -> str:
@@ -55,8 +57,8 @@ def reason(exc: LpamError) -> str:
     return text if len(text) <= MAX_REASON else text[: MAX_REASON - 1] + "…"
 
 
-def command(machine: Machine, given: m.Command, report: Report) -> Answer:
-    """A command written to the command (or config) characteristic."""
+def command(machine: Machine, given: m.Command, report: Report, *, by: Actor) -> Answer:
+    """A command written to the command (or config) characteristic by the phone `by`."""
     from reconciler.workflow.operate import operate_installed
 
     if given is m.Command.INFO:
@@ -66,7 +68,7 @@ def command(machine: Machine, given: m.Command, report: Report) -> Answer:
         return Answer(status=m.Status.not_served("this command"))
     failed = m.Failure.STOPPING if given is m.Command.STOP else m.Failure.RESTARTING
     try:
-        operate_installed(machine, action, file=None, force=False, options=options(),
+        operate_installed(machine, action, file=None, force=False, options=options(by),
                           report=report)
     except LpamError as exc:
         return Answer(status=failed.because(reason(exc)))
@@ -81,27 +83,28 @@ def app_info(machine: Machine) -> list[bytes]:
     return m.app_info_message(report(machine).listed())
 
 
-def request(machine: Machine, given: m.Request, report: Report) -> Answer:
-    """A message written to the input characteristic, already parsed and checked."""
+def request(machine: Machine, given: m.Request, report: Report, *, by: Actor) -> Answer:
+    """A message written to the input characteristic by the phone `by`, already parsed
+    and checked."""
     from reconciler.workflow import editing
 
     try:
         if isinstance(given, m.AppEnable):
-            editing.enable_app(machine, given.app, options=options(), report=report, by=BY)
+            editing.enable_app(machine, given.app, options=options(by), report=report, by=BY)
             return Answer(status=m.Status.APP_COMMAND_SUCCESS)
         if isinstance(given, m.AppUpdate):
-            editing.update(machine, options=options(), report=report)
+            editing.update(machine, options=options(by), report=report)
             return Answer(status=m.Status.APP_UPDATED)
         if isinstance(given, m.AddRepository):
             editing.add_repository(machine, given.repository, given.branch,
-                                   options=options(), report=report, by=BY)
+                                   options=options(by), report=report, by=BY)
             return Answer(status=m.Status.REPOSITORY_UPDATED)
         if isinstance(given, m.RemoveRepository):
-            editing.remove_repository(machine, given.repository, options=options(),
+            editing.remove_repository(machine, given.repository, options=options(by),
                                       report=report, by=BY)
             return Answer(status=m.Status.REPOSITORY_REMOVED)
         if isinstance(given, m.AppParams):
-            editing.set_params(machine, given.app, dict(given.params), options=options(),
+            editing.set_params(machine, given.app, dict(given.params), options=options(by),
                                report=report, by=BY)
             return Answer(status=m.Status.APP_COMMAND_SUCCESS)
         if isinstance(given, m.ReadSummary):

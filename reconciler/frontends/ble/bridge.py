@@ -7,6 +7,14 @@ therefore never waits on lpam: `write` only parses and queues (a full queue is a
 text, not a wait), and the worker sends what a request produced through the server's
 thread-safe notify. Requests run in the order they came, from any phone; each phone has its
 own input buffer (privzone.framing.Inbox), so two phones' chunks never mix.
+
+Who asked: each request runs as the phone that wrote it (`who`, from the device BlueZ
+named with the write: workflow/actor.py), so history and status name that phone. The
+phone is asked of BlueZ on the worker, where waiting costs the GATT loop nothing. What
+the bridge itself refuses — a malformed message, a full queue — is logged with the
+phone's address as the device path spells it. What BlueZ refuses before lpam (an
+unbonded phone's write to an `encrypt-write` characteristic) never reaches the bridge:
+BlueZ's own log has it.
 """
 
 from __future__ import annotations
@@ -20,14 +28,17 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Union
 
+from reconciler.adapters.bluez.devices import address_in
 from reconciler.adapters.bluez.shape import Characteristic
 from reconciler.core.privzone import messages as m
 from reconciler.core.privzone.framing import Delivery, Inbox, encode_status
 from reconciler.frontends.ble import answers
 from reconciler.frontends.ble.temperature import Thermometer
 from reconciler.frontends.console import guarded
+from reconciler.workflow.actor import phone
 from reconciler.workflow.events import Event, Report
 from reconciler.workflow.machine import Machine
+from schemas.record import Actor
 
 QUEUED = 4
 """Requests that may wait behind the one running; more are refused with a text."""
@@ -38,6 +49,7 @@ PACE = 0.05
 """Seconds between two notifications of one message (the phone reads them in order)."""
 
 Send = Callable[[Characteristic, bytes], None]
+Who = Callable[[Union[str, None]], Actor]
 Work = Union[m.Command, m.Request]
 
 
@@ -51,10 +63,14 @@ class Bridge:
     """The GATT handler (adapters/bluez GattHandler) of `lpam ble`."""
 
     def __init__(self, machine: Machine, send: Send, *, thermometer: Thermometer,
-                 log: Callable[[str], None], bug: Callable[[], str]) -> None:
+                 log: Callable[[str], None], bug: Callable[[], str],
+                 who: Who | None = None) -> None:
         """`send` notifies a characteristic from any thread; `log` writes a line of the
-        service's log; `bug` records the traceback of an unexpected error and says where."""
+        service's log; `bug` records the traceback of an unexpected error and says where;
+        `who` names the phone at a BlueZ device path (called on the worker; default: the
+        address the path spells)."""
         self._machine, self._send, self._log, self._bug = machine, send, log, bug
+        self._who: Who = who or (lambda device: phone(address_in(device)))
         self.thermometer = thermometer
         self._inbox = Inbox()
         self._jobs: queue.Queue[_Job | None] = queue.Queue(maxsize=QUEUED)
@@ -86,7 +102,7 @@ class Bridge:
             if isinstance(done, Delivery):
                 self._parsed(lambda: m.parse_input(done.body), device)
             elif done is not None:
-                self.status(done.text)
+                self._refused(done.text, device)
 
     def subscribed(self, char: Characteristic, on: bool) -> None:
         if char is Characteristic.STATUS and on:
@@ -110,12 +126,17 @@ class Bridge:
         try:
             work = parse()
         except m.ProtocolError as exc:
-            self.status(exc.text)
+            self._refused(exc.text, device)
             return
         try:
             self._jobs.put_nowait(_Job(work, device))
         except queue.Full:
-            self.status(BUSY)
+            self._refused(BUSY, device)
+
+    def _refused(self, text: str, device: str | None) -> None:
+        """A write the bridge refuses: logged with the phone that wrote it, said to it."""
+        self._log(f"refused a write from {address_in(device) or 'an unknown phone'}")
+        self.status(text)
 
     def _notify(self, char: Characteristic, value: bytes) -> None:
         self._last[char] = value
@@ -126,9 +147,12 @@ class Bridge:
             job = self._jobs.get()
             if job is None:
                 return
-            self._log(f"request from {job.device or 'a phone'}: {job.work!r}")
+            # who asked: a fault in asking BlueZ must cost the name, not the service
+            by = guarded(partial(self._who, job.device), bug=self._bug,
+                         internal=partial(self._unnamed, job.device))
+            self._log(f"request from {by.shown}: {job.work!r}")
             # a bug must not end the service: said to the phone, and logged
-            answer = guarded(partial(self._answer, job.work), bug=self._bug,
+            answer = guarded(partial(self._answer, job.work, by), bug=self._bug,
                              internal=partial(self._internal, job.work))
             for index, chunk in enumerate(answer.output):
                 if index:
@@ -137,16 +161,23 @@ class Bridge:
             if answer.status is not None:
                 self.status(answer.status)
 
+    def _unnamed(self, device: str | None, exc: Exception, where: str) -> Actor:
+        """The phone at `device` by the address its path spells, when asking BlueZ failed
+        for a fault of lpam's (logged: its traceback is in `where`)."""
+        self._log(f"internal error naming the phone at {device}: {exc!r}; details in "
+                  f"{where}")
+        return phone(address_in(device))
+
     def _internal(self, work: Work, exc: Exception, where: str) -> answers.Answer:
         self._log(f"internal error on {work!r}: {exc!r}; details in {where}")
         return answers.Answer(status=f"Internal error in lpam ({type(exc).__name__}); "
                               "details in its debug log")
 
-    def _answer(self, work: Work) -> answers.Answer:
+    def _answer(self, work: Work, by: Actor) -> answers.Answer:
         report: Report = self._report
         if isinstance(work, m.Command):
-            return answers.command(self._machine, work, report)
-        return answers.request(self._machine, work, report)
+            return answers.command(self._machine, work, report, by=by)
+        return answers.request(self._machine, work, report, by=by)
 
     def _report(self, event: Event) -> None:
         text = getattr(event, "text", None) or getattr(event, "line", None)

@@ -25,9 +25,11 @@ from reconciler.adapters.bluez.server import GattServer
 from reconciler.adapters.bluez.shape import Characteristic
 from reconciler.frontends.ble.bridge import Bridge
 from reconciler.frontends.ble.temperature import Thermometer
+from reconciler.workflow.actor import phone
 from reconciler.workflow.bluetooth import announced, said
 from reconciler.workflow.machine import Machine
 from schemas.bluetooth import Writes
+from schemas.record import Actor
 
 TICK = 1.0
 """Seconds between two temperatures (the phone gives up after 20 s without one)."""
@@ -69,9 +71,14 @@ async def _serve(machine: Machine, stopping: threading.Event, *, bus_address: st
         stopping.set()
         stop.set()
 
+    def who(device: str | None) -> Actor:
+        """The phone at `device`, as bluetoothd knows it (asked on the bridge's worker)."""
+        found = servers[0].device(device)
+        return phone(found.address, found.name)
+
     thermometer = Thermometer(machine.layout.thermal_zone)
     bridge = Bridge(machine, lambda char, value: servers[0].notify_threadsafe(char, value),
-                    thermometer=thermometer, log=log, bug=bug)
+                    thermometer=thermometer, log=log, bug=bug, who=who)
     server = GattServer(bridge, bus_address=bus_address, adapter=adapter, log=log, bug=bug,
                         writes=writes)
     servers.append(server)
