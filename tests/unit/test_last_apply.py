@@ -219,7 +219,22 @@ def test_an_apply_with_nothing_to_do_ends_a_stale_last_apply(stale: LastResult) 
     assert [r.applied for r in after.repositories] == ["d" * 40]
     text, body = said(after)
     assert body["last_apply"]["state"] == "succeeded" and body["deferred"] is None
-    assert "nothing was left to do" in text and "cut off" not in text
+    assert "nothing was left to do: the machine matched the desired state" in text
+    assert "cut off" not in text
+
+
+def test_an_apply_that_ends_a_cut_off_one_under_a_stop_never_says_the_car_matched() -> None:
+    """The field trial on libpanda-default-apps: an apply killed at its start step, `lpam
+    stop`, then `lpam apply`: the car differs from the desired state on purpose (the stop
+    holds the app), so the apply that ends the cut-off one says so — not "the machine
+    matched the desired state", which `lpam plan` would contradict."""
+    stopped = ALPHA.model_copy(update={"held": True, "status": "installed"})
+    before = record(IN_PROGRESS, cutover=CUTOVER).model_copy(update={"apps": [stopped]})
+    after = settled(before, now="2026-11-27T11:00:00+00:00", desired=None)
+    assert after is not None and after.last_apply is not None
+    text, _ = said(after)
+    assert "nothing was left to do: the holds in force keep the rest as it is" in text
+    assert "matched" not in text
 
 
 def test_an_apply_with_nothing_to_do_writes_nothing_after_a_settled_one() -> None:

@@ -190,10 +190,13 @@ def settled(record: StateRecord, *, now: str, desired: DesiredRef | None,
     # not what the checkouts hold.
     repositories = record.repositories if hold is not None else \
         [r.model_copy(update={"applied": r.commit}) for r in record.repositories]
+    # Under holds the car differs from the desired state on purpose: never "it matched"
+    held = hold is not None or any(a.held for a in record.apps)
+    why = "the holds in force keep the rest as it is" if held else \
+        "the machine matched the desired state"
     return record.model_copy(update={
         "last_apply": LastApply(time=now, result="applied",
-                                reason="nothing was left to do: the machine matched the "
-                                "desired state", by=by),
+                                reason=f"nothing was left to do: {why}", by=by),
         "repositories": repositories,
         "cutover": None,
         "desired": desired or record.desired,
