@@ -2,7 +2,8 @@
 
 Why: anyone in Bluetooth range of a parked car could change what it runs (issue 31), and
 the record kept no trace of who did. Version 8 writes `by` on the history entries an
-apply makes and on the last apply. A version-7 record does not know who made its
+apply makes and on the last apply, `held_by` on an app an operator stopped, and `by` on a
+rollback's hold. A version-7 record does not know who made its
 changes, and the step does not guess: no `by` is added (it reads as "not recorded"), and
 everything else is kept as written, so the step is the version alone.
 """

@@ -79,55 +79,6 @@ class RepositoryRecord(BaseModel):
         "no successful apply has used it yet): a checkout that differs is not what runs")
 
 
-class AppRecord(GenerationFields):
-    """The installed app: the generation (schemas/generation.py) and where its lifecycle
-    stands."""
-
-    commit: str = Field(description="commit the installed generation was copied from")
-    tree: str = Field(description="git tree hash of the app folder at that commit")
-    path: str = Field(description="folder of the app inside its repository")
-    status: AppStatus = "installed"
-    run: str | None = Field(
-        default=None,
-        description="id of the script run under way when the status was written; its exit "
-        "code lands in var/lib/lpam/runs/<run>.exit when it ends, even if lpam died",
-    )
-    held: bool = Field(
-        default=False, description="stopped by an operator (`lpam stop`): not started again "
-        "until `lpam start` or a change of the desired state")
-    good: bool = Field(
-        default=True, description="this generation, with these parameters, passed its "
-        "health check to its end since it was installed or reconfigured (or was a good "
-        "generation brought back): until then an apply verifies it again, and it is no "
-        "rollback target")
-
-    @property
-    def running(self) -> bool:
-        return self.status == "running"
-
-
-
-class Stray(BaseModel):
-    """An app generation found installed on disk that no record knew about (the record
-    was lost or moved aside). It may hold the CAN hardware, so it is stopped and
-    uninstalled with its own scripts before any other app is installed."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    name: str
-    generation: str
-    params: dict[str, str] = Field(default_factory=dict)
-    stopped: bool = False
-    pending: Literal["stop", "uninstall"] | None = Field(
-        default=None, description="the script under way when the record was written")
-    run: str | None = None
-    service: str | None = Field(
-        default=None, description="a unit lpam wrote for it (scriptless app): removed with it")
-    folder: str | None = Field(
-        default=None, description="an app LPAM installed: its folder under "
-        "/etc/libpanda.d/apps, whose own scripts stop and uninstall it")
-
-
 ActorKind = Literal["user", "phone", "agent"]
 
 
@@ -173,6 +124,60 @@ class Actor(BaseModel):
                                 else "local override") + ")"
         who = self.id or "(user not known)"
         return who + (f" ({self.via})" if self.via else "")
+
+
+class AppRecord(GenerationFields):
+    """The installed app: the generation (schemas/generation.py) and where its lifecycle
+    stands."""
+
+    commit: str = Field(description="commit the installed generation was copied from")
+    tree: str = Field(description="git tree hash of the app folder at that commit")
+    path: str = Field(description="folder of the app inside its repository")
+    status: AppStatus = "installed"
+    run: str | None = Field(
+        default=None,
+        description="id of the script run under way when the status was written; its exit "
+        "code lands in var/lib/lpam/runs/<run>.exit when it ends, even if lpam died",
+    )
+    held: bool = Field(
+        default=False, description="stopped by an operator (`lpam stop`): not started again "
+        "until `lpam start` or a change of the desired state")
+    held_by: Actor | None = Field(
+        default=None, description="who stopped it (`held`): the user or the phone; None: "
+        "not held, or held by an lpam that did not record it")
+    good: bool = Field(
+        default=True, description="this generation, with these parameters, passed its "
+        "health check to its end since it was installed or reconfigured (or was a good "
+        "generation brought back): until then an apply verifies it again, and it is no "
+        "rollback target")
+
+    @property
+    def running(self) -> bool:
+        return self.status == "running"
+
+
+
+class Stray(BaseModel):
+    """An app generation found installed on disk that no record knew about (the record
+    was lost or moved aside). It may hold the CAN hardware, so it is stopped and
+    uninstalled with its own scripts before any other app is installed."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    generation: str
+    params: dict[str, str] = Field(default_factory=dict)
+    stopped: bool = False
+    pending: Literal["stop", "uninstall"] | None = Field(
+        default=None, description="the script under way when the record was written")
+    run: str | None = None
+    service: str | None = Field(
+        default=None, description="a unit lpam wrote for it (scriptless app): removed with it")
+    folder: str | None = Field(
+        default=None, description="an app LPAM installed: its folder under "
+        "/etc/libpanda.d/apps, whose own scripts stop and uninstall it")
+
+
 
 
 ApplyResult = Literal["applied", "failed", "rolled back"]
@@ -310,6 +315,8 @@ class Hold(BaseModel):
         default_factory=list, description="the set of apps the rollback returns to: a "
         "rollback cut off by a crash is finished by the next plan and apply (empty: "
         "recorded by an lpam that did not keep it)")
+    by: Actor | None = Field(
+        default=None, description="who asked for the rollback (None: not recorded)")
 
     @property
     def name(self) -> str:

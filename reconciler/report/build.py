@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from reconciler.report.gather import Listing, Seen
     from schemas.catalog import CatalogApp
     from schemas.plan import Plan
-    from schemas.record import AppRecord, LastApply, StateRecord, Stray
+    from schemas.record import Actor, AppRecord, LastApply, StateRecord, Stray
 
 DAMAGED = "(damaged in the store: the next `lpam apply` fetches it anew)"
 
@@ -232,6 +232,11 @@ def held_by(record: StateRecord) -> str:
     return "held by `lpam rollback`, which did not finish: the next apply finishes it"
 
 
+def asked_by(actor: Actor | None) -> str:
+    """Who asked for a hold, as status says it (nothing when not recorded)."""
+    return "" if actor is None else f" (asked by {actor.shown})"
+
+
 def holds(record: StateRecord) -> list[HoldView]:
     """Every hold on this car, what it holds against and how it ends."""
     against = record.desired.source if record.desired is not None else "the desired state"
@@ -251,8 +256,8 @@ def holds(record: StateRecord) -> list[HoldView]:
     for app in record.apps:  # an operator's stop holds one app
         if app.held:
             found.append(HoldView(
-                kind="operator stop", what=f"{app.name} was stopped by `lpam stop` and "
-                "stays stopped", against=against,
+                kind="operator stop", what=f"{app.name} was stopped by `lpam stop`"
+                f"{asked_by(app.held_by)} and stays stopped", against=against,
                 ends=f"with {start.format(name=app.name)}, when the desired state last "
                 f"applied ({against}) changes, or with `{release}`"))
     return found

@@ -251,5 +251,5 @@ def _release(machine: Machine, report: Report) -> None:
     for app in record.apps:
         if app.held:
             record = write_record(machine.layout, record.with_app(
-                app.name, app.model_copy(update={"held": False})))
+                app.name, app.model_copy(update={"held": False, "held_by": None})))
             report(Progress(f"Released the operator's stop of {app.name}."))

@@ -49,7 +49,7 @@ def operate_installed(machine: Machine, action: OperatorAction, *, file: Path | 
     with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         ctx, _ = machine.context(machine.store(), lock, command=str(action),
                                  script_timeout=options.script_timeout, report=report,
-                                 gate=gate, gate_wait=options.wait)
+                                 gate=gate, gate_wait=options.wait, by=options.by)
         return operate(ctx, action, progress=lambda text: report(Progress(text)), app=app)
 
 
@@ -74,7 +74,7 @@ def roll_back(machine: Machine, *, file: Path | None, force: bool, options: Appl
         # what resumes a cut-off rollback is an apply, not another rollback (resumed_by)
         ctx, _ = machine.context(machine.store(), lock, command=resumed_by("rollback"),
                                  script_timeout=options.script_timeout, report=report,
-                                 gate=gate, gate_wait=options.wait)
+                                 gate=gate, gate_wait=options.wait, by=options.by)
         entries = previous_good(ctx)
         kept = stays_stopped(ctx.record, entries)
         if kept:  # said before the question: the answer covers it
@@ -111,9 +111,11 @@ def operate(ctx: Context, action: OperatorAction, *, progress: ProgressLine,
         # run carries out a stop (or a start) that was asked for and cut off.
         for one in chosen:
             if action == OperatorAction.STOP:
-                ctx.save_app(one.name, one.model_copy(update={"held": True}))
+                ctx.save_app(one.name, one.model_copy(update={"held": True,
+                                                              "held_by": ctx.by}))
             elif one.held:
-                ctx.save_app(one.name, one.model_copy(update={"held": False}))
+                ctx.save_app(one.name, one.model_copy(update={"held": False,
+                                                              "held_by": None}))
         made = operator_plan(ctx.record, action, generations.present(ctx.layout),
                              chosen=names, now=ctx.clock(), lpam_version=__version__)
         if made.steps:
@@ -189,9 +191,9 @@ def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | 
     default file's, counts only when no apply recorded one)."""
     applied = ctx.record.desired
     hold = Hold(desired=applied.fingerprint if applied is not None
-                else fingerprint(desired), targets=entries)
+                else fingerprint(desired), targets=entries, by=ctx.by)
     kept = stays_stopped(ctx.record, entries)
-    stopped = {a.name for a in ctx.record.apps if a.held}
+    stopped = {a.name: a.held_by for a in ctx.record.apps if a.held}
     with gates_passed(ctx, progress):
         ctx.save(ctx.record.model_copy(update={"hold": hold}))
         made = rollback_plan(ctx.record, entries, generations.present(ctx.layout),
@@ -200,7 +202,8 @@ def rollback(ctx: Context, entries: list[HistoryEntry], desired: DesiredState | 
             execute(made, ctx, progress=progress, record_result=False)
         for app in ctx.record.apps:  # a generation installed anew keeps the operator's stop
             if app.name in stopped and not app.held:
-                ctx.save_app(app.name, app.model_copy(update={"held": True}))
+                ctx.save_app(app.name, app.model_copy(update={"held": True,
+                                                              "held_by": stopped[app.name]}))
     said = ", ".join(f"{e.app} ({e.generation}, commit {e.commit[:12]})" for e in entries)
     return (f"Rolled back to {said}. "
             f"{'It holds' if len(entries) == 1 else 'They hold'}: plan and apply propose "

@@ -48,9 +48,15 @@ def test_history_and_status_name_the_phone_that_made_each_change(
             said = await a.next_status(3, 10)
             assert said != "App command success!", said
             await until(lambda: "refused" in (car.root / "ble.log").read_text(), 10)
+            await a.command("As")  # the phone's stop holds the app: status names the phone
+            assert await a.next_status(4, 60) == "App command success!"
 
     with ble(car, bus):
         scenario(body)
+
+    [hold] = car.lpam.status()["holds"]
+    assert "was stopped by `lpam stop` (asked by phone AA:BB:CC:DD:EE:01 (Pixel 7))" in \
+        hold["what"], hold
 
     entries = json.loads(car.lpam("history", "--json").stdout)
     assert [(e["params"], e["by"]) for e in entries[-2:]] == [

@@ -211,6 +211,28 @@ def test_history_names_the_user_who_made_each_change(shim: Shim) -> None:
     assert "(asked by carol (lpam))" in shim.lpam("status").stdout
 
 
+def test_status_names_who_stopped_an_app(shim: Shim) -> None:
+    """A stop holds its app until someone starts it: status's Held line and `--json` name
+    who asked (issue 31) — the shim's user under sudo, the CLI's user — and a start ends
+    the hold with its name."""
+    unsudo = {k: v for k, v in os.environ.items() if k != "SUDO_USER"}
+    assert shim("-k", env={**unsudo, "SUDO_USER": "alice"}).returncode == 0
+    [hold] = shim.lpam.status()["holds"]
+    assert "ticker was stopped by `lpam stop` (asked by alice (libpanda-app-manager)) " \
+        "and stays stopped" in hold["what"], hold
+    assert "(asked by alice (libpanda-app-manager))" in shim.lpam("status").stdout
+    done = subprocess.run([sys.executable, "-m", "reconciler", "--root", str(shim.root),
+                           "start"], capture_output=True, text=True, timeout=120,
+                          env=unsudo)
+    assert done.returncode == 0, done.stderr
+    assert shim.lpam.status()["holds"] == []
+    done = subprocess.run([sys.executable, "-m", "reconciler", "--root", str(shim.root),
+                           "stop"], capture_output=True, text=True, timeout=120,
+                          env={**unsudo, "SUDO_USER": "carol"})
+    assert done.returncode == 0, done.stderr
+    assert "(asked by carol (lpam))" in shim.lpam.status()["holds"][0]["what"]
+
+
 def test_refusals_change_nothing_and_exit_non_zero(shim: Shim) -> None:
     pid = running_pid(shim)
     assert "not in the catalog" in shim.refused("-i", "gamma")

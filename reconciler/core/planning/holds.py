@@ -75,7 +75,8 @@ def released(record: StateRecord, desired: DesiredState) -> tuple[StateRecord, l
         if app.held:
             notes.append(f"the operator's stop of {app.name} ends: the desired state changed "
                          f"since it was last applied (from {applied.source})")
-            record = record.with_app(app.name, app.model_copy(update={"held": False}))
+            record = record.with_app(app.name, app.model_copy(
+                update={"held": False, "held_by": None}))
     return record, notes
 
 

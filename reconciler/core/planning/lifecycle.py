@@ -214,8 +214,9 @@ def operated(app: AppRecord, action: OperatorAction) -> AppRecord:
     if action == OperatorAction.STOP:
         return app
     if action == OperatorAction.RESTART and app.status in ("running", "starting"):
-        return app.model_copy(update={"status": "stopping", "held": False})
-    return app.model_copy(update={"held": False})
+        return app.model_copy(update={"status": "stopping", "held": False,
+                                        "held_by": None})
+    return app.model_copy(update={"held": False, "held_by": None})
 
 
 def strays_refreshed(record: StateRecord, live: Mapping[str, UnitState]) -> StateRecord:

@@ -195,5 +195,5 @@ def start(step: StartStep, ctx: Context) -> None:
     a generation proved good before, or an apply with nothing to check)."""
     app = installed(step.app, step.id, ctx)
     good = app.good or step.good
-    _lifecycle(ctx, app.model_copy(update={"held": False, "good": good}), "start", "starting",
-               "running")
+    started = app.model_copy(update={"held": False, "held_by": None, "good": good})
+    _lifecycle(ctx, started, "start", "starting", "running")
