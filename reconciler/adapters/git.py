@@ -50,7 +50,7 @@ from dulwich.refs import Ref
 from dulwich.repo import Repo
 
 from reconciler.adapters import integrity
-from reconciler.adapters.objectsize import object_size
+from reconciler.adapters.objectsize import object_size, too_large
 from reconciler.adapters.remote import RemoteRefs, Transport
 from reconciler.adapters.wire import durable
 from reconciler.base.atomic import fsync_dir, write_atomic
@@ -172,12 +172,7 @@ class GitStore:
                 data = repo.object_store[found[1]].as_raw_string()
                 size = len(data)
             if size > limit:
-                raise GitError(
-                    f"{key}: '{path}' at commit {commit[:12]} is {size} bytes; lpam reads at "
-                    f"most {limit} bytes of a file in a repository",
-                    hint="the file is too big to be an app catalog or parameter file; "
-                    "check that the right file is committed",
-                )
+                raise too_large(key, path, commit, size, limit)
             return data if data is not None else repo.object_store[found[1]].as_raw_string()
 
     def folder_tree(self, key: str, commit: str, folder: str) -> str | None:

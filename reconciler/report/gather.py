@@ -93,10 +93,10 @@ def gather(layout: Layout, *, store: Objects | None = None,
     on disk (the shim lists the desired state's repositories, not the recorded ones).
     `listed` False: no repository's catalog is read (the published status and the phone's
     summary show the installed apps only, and an agent publishes every few minutes)."""
-    if store is None and listed:
-        from reconciler.adapters.git import GitStore
+    if store is None and listed:  # the committed files, read without dulwich's import
+        from reconciler.adapters.objectfiles import ObjectFiles
 
-        store = GitStore(layout)
+        store = ObjectFiles(layout)
     if record is None:
         record = read_record(layout)
     lives = {} if state is None else \
