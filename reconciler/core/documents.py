@@ -241,7 +241,7 @@ def load_plan(path: Path) -> Plan:
     hint = "pass a file written by `lpam plan --out FILE`, or use -f for a desired state"
     plan = parse_json(DocumentKind.PLAN, text, path, Plan, version_key="format_version", hint=hint)
     if plan.fingerprint != fingerprint(plan):
-        line, column = JsonPositions(path, text, "format_version")(["fingerprint"])
+        line, column = JsonPositions(text, "format_version")(["fingerprint"])
         raise ConfigError("the plan's fingerprint does not match its steps (edited or "
                           "corrupt)", path=path, line=line, column=column,
                           hint="make a new plan with `lpam plan --out FILE`")

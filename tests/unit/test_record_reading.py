@@ -59,7 +59,7 @@ def test_a_record_of_a_newer_lpam_still_names_the_line_of_its_version(
 def test_reading_the_record_loads_no_yaml_reader_and_no_other_document_s_model(
         tmp_path: Path) -> None:
     """Every `lpam status` and plan reads the record: in a fresh interpreter, reading it
-    imports neither the YAML reader nor the models of the
+    (a fault in it included) imports neither the YAML reader nor the models of the
     documents it is not (desired state, catalog, agent settings, plan), so it costs only
     the record's own model (issue 32 item 2)."""
     import json
@@ -67,6 +67,9 @@ def test_reading_the_record_loads_no_yaml_reader_and_no_other_document_s_model(
     import sys
 
     a_record(Layout(tmp_path / "sound"))
+    a_record(Layout(tmp_path / "faulty"))
+    faulty = Layout(tmp_path / "faulty").state_record
+    faulty.write_text(faulty.read_text().replace('"running"', "7"))
     script = (
         "import json, sys\n"
         "from pathlib import Path\n"
@@ -80,7 +83,7 @@ def test_reading_the_record_loads_no_yaml_reader_and_no_other_document_s_model(
         "print(json.dumps(sorted(sys.modules)))\n")
     heavy = {"ruamel.yaml", "schemas.desired", "schemas.catalog", "schemas.agent",
              "schemas.plan"}
-    for case in ["sound"]:
+    for case in ["sound", "faulty"]:
         done = subprocess.run([sys.executable, "-c", script, str(tmp_path / case)],
                               capture_output=True, text=True, timeout=120, check=True)
         loaded = set(json.loads(done.stdout))
