@@ -108,11 +108,12 @@ def _guarded_parser() -> type:
     return GuardedParser
 
 
-def _yaml(typ: str = "rt") -> Any:
+def _yaml(typ: str = "rt", *, keep_quotes: bool = False) -> Any:
     from ruamel.yaml import YAML
 
     yaml = YAML(typ=typ)
     yaml.allow_duplicate_keys = False
+    yaml.preserve_quotes = keep_quotes
     if typ == "rt":
         yaml.Parser = _guarded_parser()
     return yaml
@@ -151,8 +152,12 @@ def read_text(path: Path) -> str:
     return text
 
 
-def load(path: Path, text: str | None = None) -> Document:
-    """Parse one YAML document, turning every parser complaint into a ConfigError."""
+def load(path: Path, text: str | None = None, *, keep_quotes: bool = False) -> Document:
+    """Parse one YAML document, turning every parser complaint into a ConfigError.
+
+    `keep_quotes`: the tree keeps each scalar's quotes, as `roundtrip.writer` reads a file
+    it rewrites, so that an edit (`lpam pin`, the phone's) changes the tree validated here
+    instead of composing the same text a second time."""
     from ruamel.yaml.error import MarkedYAMLError, YAMLError
 
     if text is None:
@@ -165,7 +170,7 @@ def load(path: Path, text: str | None = None) -> Document:
             hint="remove the line; lpam reads YAML 1.2",
         )
     try:
-        tree = _yaml().load(text)
+        tree = _yaml(keep_quotes=keep_quotes).load(text)
     except _Refused as exc:
         raise ConfigError(exc.message, path=path, line=exc.mark.line + 1,
                           column=exc.mark.column + 1, hint=exc.hint) from None

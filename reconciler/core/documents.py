@@ -8,23 +8,21 @@ later, once the apps' catalogs are read (two apps that claim one resource).
 
 from __future__ import annotations
 
-import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol
 
 from pydantic import BaseModel, ValidationError
 
 from reconciler.base.errors import ConfigError
 from reconciler.base.loading import Document, load
+from reconciler.core.written import JsonPositions, parse_json
 from schemas.agent import AgentConfig
 from schemas.catalog import Catalog, CatalogFault, RawCatalog, normalise
 from schemas.desired import DesiredState
 from schemas.kinds import DocumentKind
 from schemas.plan import Plan
-
-M = TypeVar("M", bound=BaseModel)
 
 
 class _Places(Protocol):
@@ -230,83 +228,6 @@ def catalog_from(doc: Document) -> Catalog:
         raise doc.error(str(exc), list(exc.loc)) from None
 
 
-def parse_json(
-    kind: DocumentKind, text: str, path: Path, model: type[M], *, hint: str,
-    version_key: str = "version",
-) -> M:
-    """A JSON document lpam wrote itself (plan, state record): parse, migrate, validate.
-
-    A fault names its line and column like a YAML document's: JSON is YAML, so the text is
-    parsed again for positions, but only once a fault needs them (a large plan is parsed
-    once, by `json`, when it is sound).
-    """
-    from migrations import upgrade
-
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"not a valid {kind}: {exc.msg}", path=path, line=exc.lineno,
-                          column=exc.colno, hint=hint) from None
-    except RecursionError:
-        raise ConfigError(f"not a valid {kind}: nested too deeply", path=path, line=1,
-                          column=1, hint=hint) from None
-    where = _JsonPositions(path, text, version_key)
-    if isinstance(data, dict) and version_key != "version" and version_key in data:
-        data["version"] = data.pop(version_key)
-    data = upgrade(kind, data, path=path, position=where)
-    if version_key != "version":
-        data[version_key] = data.pop("version")
-    try:
-        return model.model_validate(data)
-    except ValidationError as exc:
-        error = exc.errors()[0]
-        loc, message = _tagged(data, list(error["loc"])), str(error["msg"])
-        if error["type"] == "union_tag_invalid":  # pydantic lists the tags as reprs
-            loc, message = [*loc, "kind"], f"unknown kind {error['ctx']['tag']!r}"
-        field = ".".join(str(p) for p in loc)
-        line, column = where(loc)
-        raise ConfigError(f"invalid {kind} at {field}: {message}", path=path,
-                          line=line, column=column, hint=hint) from None
-
-
-def _tagged(data: Any, loc: list[str | int]) -> list[str | int]:
-    """`loc` without the tags pydantic inserts for a union chosen by `kind` (a plan's
-    steps: `steps.0.install.app` is `steps.0.app` in the document)."""
-    kept: list[str | int] = []
-    node = data
-    for part in loc:
-        if isinstance(node, dict) and part not in node and node.get("kind") == part:
-            continue
-        kept.append(part)
-        node = node.get(part) if isinstance(node, dict) else (
-            node[part] if isinstance(node, list) and isinstance(part, int)
-            and 0 <= part < len(node) else None)
-    return kept
-
-
-class _JsonPositions:
-    """1-based (line, column) of a location in a JSON text, parsed as YAML on first use.
-    A text the YAML reader refuses (a plan of more values than a YAML document may hold)
-    has no positions: its faults name the field only."""
-
-    def __init__(self, path: Path, text: str, version_key: str) -> None:
-        self._path, self._text, self._version_key = path, text, version_key
-        self._doc: Document | None = None
-        self._failed = False
-
-    def __call__(self, loc: Sequence[str | int]) -> tuple[int, int] | tuple[None, None]:
-        if self._doc is None and not self._failed:
-            try:
-                self._doc = load(self._path, self._text)
-            except ConfigError:
-                self._failed = True
-        if self._doc is None:
-            return None, None
-        # `version` is the migrations' name of the plan's `format_version`
-        loc = [self._version_key if part == "version" else part for part in loc]
-        return self._doc.position([p for p in loc if isinstance(p, (str, int))])
-
-
 def load_plan(path: Path) -> Plan:
     """A saved plan file (`lpam plan --out`), version-checked, validated and its seal
     checked — all before any lock is taken: a step of an unknown kind, a missing or
@@ -320,7 +241,7 @@ def load_plan(path: Path) -> Plan:
     hint = "pass a file written by `lpam plan --out FILE`, or use -f for a desired state"
     plan = parse_json(DocumentKind.PLAN, text, path, Plan, version_key="format_version", hint=hint)
     if plan.fingerprint != fingerprint(plan):
-        line, column = _JsonPositions(path, text, "format_version")(["fingerprint"])
+        line, column = JsonPositions(text, "format_version")(["fingerprint"])
         raise ConfigError("the plan's fingerprint does not match its steps (edited or "
                           "corrupt)", path=path, line=line, column=column,
                           hint="make a new plan with `lpam plan --out FILE`")

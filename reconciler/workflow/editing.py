@@ -365,11 +365,11 @@ def edit(machine: Machine, change: Change, *, by: str, options: ApplyOptions,
     from reconciler.core.documents import desired_document, desired_from
 
     found = override.editable(machine)
-    doc = load(found.path, found.text)
+    doc = load(found.path, found.text, keep_quotes=True)
     current = desired_from(doc)
     _version_one(doc.data, found.path)
     yaml = roundtrip.writer(found.text)
-    tree = yaml.load(found.text)
+    tree = doc.tree  # the tree validated is the one edited: the text is composed once
     change(tree, current)
     out = io.StringIO()
     yaml.dump(tree, out)

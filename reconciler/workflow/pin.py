@@ -13,6 +13,7 @@ from __future__ import annotations
 import io
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from reconciler.base import roundtrip
 from reconciler.base.errors import ConfigError
@@ -20,6 +21,9 @@ from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
 from schemas.names import is_hex_commit
+
+if TYPE_CHECKING:
+    from schemas.desired import DesiredState
 
 
 @dataclass(frozen=True)
@@ -35,14 +39,17 @@ def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
         write: bool = True, lock_timeout: float | None = None) -> list[Pinned]:
     """Pin `path` in place (unless not `write`); the repositories pinned."""
     from reconciler.base.atomic import write_atomic
-    from reconciler.base.loading import read_text
-    from reconciler.core.documents import load_desired
+    from reconciler.base.loading import load, read_text
+    from reconciler.core.documents import desired_from
 
-    desired = load_desired(path)  # refuse a bad file before anything is asked of a remote
-    store = machine.store()
     text = read_text(path)
+    # refuse a bad file before anything is asked of a remote; the tree validated is the one
+    # rewritten (quotes kept), so the text is read and composed once
+    doc = load(path, text, keep_quotes=True)
+    desired = desired_from(doc)
+    store = machine.store()
     yaml = roundtrip.writer(text)  # the file's own style, no line re-wrapped
-    data = yaml.load(text)
+    data = doc.tree
     if data.get("version") not in (1, 2):  # the file keeps its version: only refs change
         raise ConfigError("lpam pin rewrites version 1 and 2 desired states only", path=path,
                           hint="upgrade the file first (lpam validate says how)")
@@ -68,7 +75,7 @@ def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
         done.append(Pinned(spec.key, was, commit))
         report(Progress(f"{spec.key}: {was} → {commit}"))
     if catalogs:
-        _report_ros(machine, path, report, lock_timeout=FETCH_LOCK_TIMEOUT
+        _report_ros(machine, path, desired, report, lock_timeout=FETCH_LOCK_TIMEOUT
                     if lock_timeout is None else lock_timeout)
     if write and done:
         out = io.StringIO()
@@ -77,15 +84,14 @@ def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
     return done
 
 
-def _report_ros(machine: Machine, path: Path, report: Report, *,
+def _report_ros(machine: Machine, path: Path, desired: DesiredState, report: Report, *,
                 lock_timeout: float) -> None:
-    """The ROS repositories of the app the file names, as they resolve now."""
-    from reconciler.core.documents import load_desired
+    """The ROS repositories of the app the file (`desired`, as read before its pins were
+    changed: the file is not written yet) names, as they resolve now."""
     from reconciler.engine.execution.lock import apply_lock
     from reconciler.engine.observe.targets import Fetch, resolve
     from reconciler.engine.records.legacy.appdir import libpanda_user
 
-    desired = load_desired(path)
     with apply_lock(machine.layout, timeout=lock_timeout):  # a fetch into the store is a write
         targets = resolve(desired, base_dir=path.resolve().parent, store=machine.store(),
                           fetch=Fetch.OBJECTS, default_user=libpanda_user(machine.layout),

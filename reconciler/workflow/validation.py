@@ -25,6 +25,7 @@ from reconciler.base.errors import ConfigError
 from reconciler.base.loading import Document, load, read_text
 from reconciler.base.text import counted
 from reconciler.core.documents import agent_from, catalog_from, desired_from, load_plan
+from reconciler.core.written import json_position
 from schemas.catalog import CATALOG_FILE, Catalog
 from schemas.enums import StrEnum
 
@@ -69,7 +70,7 @@ def validate(path: Path, kind: Kind | None = None) -> str:
     doc: Document | None = None
     if kind is None:
         data, doc = _parse(path, text)
-        kind = guess(data, path=path, position=lambda loc: _position(path, text, doc, loc))
+        kind = guess(data, path=path, position=lambda loc: _position(text, doc, loc))
     if kind is Kind.PLAN:
         return _plan(path)
     if doc is None:
@@ -166,14 +167,13 @@ def _parse(path: Path, text: str) -> tuple[Any, Document | None]:
     return doc.data, doc
 
 
-def _position(path: Path, text: str, doc: Document | None,
-              loc: list[str | int]) -> tuple[int, int]:
-    if doc is None:
-        try:
-            doc = load(path, text)
-        except ConfigError:
-            return 1, 1
-    return doc.position(loc)
+def _position(text: str, doc: Document | None, loc: list[str | int]) -> tuple[int, int]:
+    """Where `loc` is written: in the YAML tree, or (a JSON object `json` read) placed by
+    `json_position`, as `lpam apply PLAN` places it, without composing the text as YAML."""
+    if doc is not None:
+        return doc.position(loc)
+    line, column = json_position(text, loc)
+    return (line, column) if line is not None and column is not None else (1, 1)
 
 
 def _read(doc: Document, kind: Kind) -> str:
@@ -227,7 +227,7 @@ def _plan(path: Path) -> str:
 
 
 def _plan_error(path: Path, text: str, key: str, message: str, hint: str) -> ConfigError:
-    line, column = _position(path, text, None, [key])
+    line, column = _position(text, None, [key])
     return ConfigError(message, path=path, line=line, column=column, hint=hint)
 
 

@@ -79,3 +79,30 @@ def test_pin_refuses_a_ref_that_does_not_exist_and_changes_nothing(
     done = Lpam(tmp_path / "root")("pin", str(path))
     assert done.returncode == 1 and "nope does not exist" in done.stderr
     assert path.read_text() == text
+
+
+def test_pin_composes_the_file_once(
+    tmp_path: Path, make_repo: Callable[[str], RepoBuilder], git_daemon: GitDaemon,
+) -> None:
+    """The tree validated is the tree rewritten (its quotes kept, as the first test holds):
+    `lpam pin --catalogs` reads and composes the desired state once (issue 32 item 2)."""
+    from unittest import mock
+
+    from ruamel.yaml.composer import Composer
+
+    from reconciler.base.layout import Layout
+    from reconciler.workflow.machine import Machine
+    from reconciler.workflow.pin import pin
+
+    apps = make_repo("apps.git")
+    head = apps_repo(apps)
+    path = tmp_path / "desired.yaml"
+    path.write_text(f'version: 1\nrepositories:\n  - url: "{git_daemon.url("apps.git")}"\n'
+                    "    ref: 'main'\napp:\n  name: alpha\n")
+    with mock.patch.object(Composer, "get_single_node", autospec=True,
+                           side_effect=Composer.get_single_node) as composed:
+        done = pin(Machine.at(Layout(tmp_path / "root")), path, report=lambda event: None,
+                   catalogs=True)
+    assert [p.commit for p in done] == [head]
+    assert f"ref: '{head}'  # pinned from main" in path.read_text()  # quotes kept
+    assert composed.call_count == 2  # the desired state, and the apps' catalog (--catalogs)

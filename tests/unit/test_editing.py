@@ -65,6 +65,21 @@ def test_no_app_is_written_with_comments_order_and_version_kept(machine: Machine
     assert not again.changed and machine.layout.desired_state.read_text() == text
 
 
+def test_an_edit_composes_the_file_once_and_its_result_once(machine: Machine) -> None:
+    """The tree validated is the tree edited (quotes kept, as the test above holds): the
+    file is composed as YAML once, and the edited text once, to validate it (issue 32
+    item 2; a phone's edit on a Pi composed the file twice)."""
+    from unittest import mock
+
+    from ruamel.yaml.composer import Composer
+
+    with mock.patch.object(Composer, "get_single_node", autospec=True,
+                           side_effect=Composer.get_single_node) as composed:
+        done = editing.enable_app(machine, None, by="test", options=options(), report=quiet)
+    assert done.changed and "alpha" not in machine.layout.desired_state.read_text()
+    assert composed.call_count == 2
+
+
 def test_a_plan_time_refusal_leaves_the_file_byte_identical(machine: Machine) -> None:
     before = machine.layout.desired_state.read_bytes()
     with pytest.raises(CatalogError, match="gamma is not in the catalog"):

@@ -167,3 +167,22 @@ def test_an_edited_or_offline_plan_is_refused_as_apply_refuses_it(tmp_path: Path
 
 def test_the_cli_offers_every_kind() -> None:
     assert tuple(kind.value for kind in Kind) == VALIDATE_KINDS
+
+
+def test_an_offline_plan_is_refused_at_its_offline_key_without_the_yaml_reader(
+        tmp_path: Path) -> None:
+    """`lpam validate` places a plan's fault as `lpam apply PLAN` does, by `json`: the
+    plan is never composed as YAML (issue 32 item 2)."""
+    from unittest import mock
+
+    from ruamel.yaml.composer import Composer
+
+    offline = saved_plan(tmp_path, offline=True)
+    text = offline.read_text()
+    at = text.index('"offline"')
+    with mock.patch.object(Composer, "get_single_node", side_effect=AssertionError(
+            "composed as YAML")), pytest.raises(ConfigError) as info:
+        validate(offline, Kind.PLAN)
+    assert "cannot be applied" in info.value.message
+    assert (info.value.line, info.value.column) == (text.count("\n", 0, at) + 1,
+                                                    at - text.rfind("\n", 0, at))

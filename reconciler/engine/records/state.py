@@ -70,7 +70,7 @@ def read_agent_status(layout: Layout) -> AgentStatus | None:
 
 def _read_optional(path: Path, kind: DocumentKind, model: type[_M], hint: str) -> _M | None:
     from reconciler.base.loading import read_text
-    from reconciler.core.documents import parse_json
+    from reconciler.core.written import parse_json
 
     if not path.exists():
         return None
@@ -79,7 +79,7 @@ def _read_optional(path: Path, kind: DocumentKind, model: type[_M], hint: str) -
 
 def read_record(layout: Layout) -> StateRecord:
     """The last recorded state, settled; on a machine with no record, the strays on disk."""
-    from reconciler.core.documents import parse_json
+    from reconciler.core.written import parse_json
 
     path = layout.state_record
     hint = DAMAGED_HINT.format(path=path, generations=layout.generations)
