@@ -108,6 +108,7 @@ class BluezDouble:
         self.adapter_props: dict[str, Any] = dict(ADAPTER_DEFAULTS)
         self.adapter_sets: list[tuple[float, str, Any]] = []  # (loop time, name, value)
         self.agent: tuple[str, str, str] | None = None  # (sender, path, capability)
+        self.release_at_once = 0  # advertisements to drop right after answering them
         self._tasks: set[asyncio.Future[Any]] = set()
 
     async def start(self) -> None:
@@ -251,6 +252,15 @@ class BluezDouble:
         else:
             reply = Message.new_error(msg, "org.freedesktop.DBus.Error.UnknownMethod",
                                       f"{msg.member} is not on {self.adapter}")
+        if (call == (ADVERTISING_MANAGER, "RegisterAdvertisement") and self.release_at_once
+                and self.advertisement is not None and bus.connected):
+            # The adapter powered off as bluetoothd answered. lpam handles a Release as it
+            # reads it, an answer a step later (its waiting task wakes): so a Release sent
+            # right behind the answer is often seen first. Sent first, it always is.
+            self.release_at_once -= 1
+            held, self.advertisement = self.advertisement, None
+            bus.send(Message(destination=held.sender, path=held.path, interface=ADVERTISEMENT,
+                             member="Release", flags=MessageFlag.NO_REPLY_EXPECTED))
         if bus.connected:
             bus.send(reply)
 

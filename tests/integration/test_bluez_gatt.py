@@ -401,6 +401,21 @@ def test_an_advertisement_bluetoothd_released_is_registered_again(bus: str) -> N
     scenario(body)
 
 
+def test_a_release_right_behind_the_registrations_answer_is_not_lost(bus: str) -> None:
+    """bluetoothd answers the registration and releases the advertisement in the next
+    message (the adapter powered off): lpam registers it again, not believing it held."""
+    async def body() -> None:
+        async with bluetoothd(bus) as double:
+            double.release_at_once = 1
+            async with serving(GattServer(Recorder(), bus_address=bus, log=print)):
+                await until(lambda: double.release_at_once == 0, 5)
+                await double.registered(timeout=5)
+                assert [e for e, _ in double.events if e == "RegisterAdvertisement"] == [
+                    "RegisterAdvertisement"] * 2
+
+    scenario(body)
+
+
 def test_survives_the_system_bus_restarting(tmp_path: Path) -> None:
     """A bus, then none, then a new one on the same socket: lpam is registered with the
     bluetoothd of each bus in turn."""

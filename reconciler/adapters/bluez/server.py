@@ -88,6 +88,7 @@ class GattServer:
         self._wake: asyncio.Event | None = None
         self._registered: set[str] = set()
         self._asked: set[str] = set()  # registrations sent, not answered: may be held
+        self._dropped: set[str] = set()  # released by bluetoothd while being asked
         self._bluez: str | None = None  # bluetoothd's unique name: the only caller served
         self._problem = ""  # the last reason logged, so a retry loop logs it once
 
@@ -215,6 +216,7 @@ class GattServer:
             manager, kind, path = _REGISTRATIONS[what]
             call = self._adapter_call(manager, "Register" + kind, path)
             self._asked.add(what)
+            self._dropped.discard(what)
             error = await _call(bus, call, stop, CALL_TIMEOUT, grace=LEAVE_TIMEOUT)
             if error is UNANSWERED:  # stopped, and still no answer: it may be held
                 return False
@@ -224,6 +226,9 @@ class GattServer:
                     self._report(f"cannot register the {what} on {self._adapter}: "
                                  f"{self._explain(error)}", retry=delay)
                 return False
+            if what in self._dropped:  # its Release overtook our reading of the answer
+                self._dropped.discard(what)
+                continue  # still missing: the loop registers it again
             self._registered.add(what)
             self._problem = ""
             self._log(f"registered the {what} on {self._adapter}")
@@ -292,7 +297,13 @@ class GattServer:
             self._wake.set()
 
     def _advertisement_released(self) -> None:
+        """bluetoothd dropped the advertisement. Its Release is handled as the message
+        arrives, while the answer to a registration sent just before it wakes `_register`
+        a step later: a Release in that gap is kept in `_dropped`, or it would be lost and
+        the car would stay unadvertised while lpam believes it is registered."""
         self._registered.discard(ADVERTISING)
+        if ADVERTISING in self._asked:
+            self._dropped.add(ADVERTISING)
         if self._wake is not None:
             self._wake.set()
 
