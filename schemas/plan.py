@@ -38,6 +38,17 @@ class Action(StrEnum):
         ]
 
 
+class FetchedRepository(BaseModel):
+    """What making the plan fetched for one repository: on a phone's hotspot or a metered
+    link, what an update costs."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    key: str
+    bytes: int = Field(description="bytes of pack the server sent (a local path: stored)")
+    shallow: bool = Field(description="the pinned commit alone, without its history")
+
+
 class Change(BaseModel):
     """One difference between desired and observed, with a reason a person can read."""
 
@@ -237,6 +248,10 @@ class Plan(BaseModel):
     offline: bool = Field(
         default=False,
         description="made without network: branches as of the last fetch; never applied",
+    )
+    fetched: list[FetchedRepository] = Field(
+        default_factory=list,
+        description="what resolving fetched, per repository; not part of the seal",
     )
     fingerprint: str = ""
 

@@ -41,6 +41,8 @@ def write(layout: Layout, out: Path, *, branch: str, tip: str, manifest: dict[st
     from dulwich.refs import Ref
     from dulwich.repo import Repo
 
+    from reconciler.adapters import history
+
     with tempfile.TemporaryDirectory(prefix="lpam-bundle-") as tmp, \
             Repo.init_bare(tmp) as pack:
         for key, commit in pins:
@@ -48,6 +50,8 @@ def write(layout: Layout, out: Path, *, branch: str, tip: str, manifest: dict[st
                 count, records = source.generate_pack_data(
                     have=set(), want={ObjectID(commit.encode("ascii"))})
                 pack.object_store.add_pack_data(count, records)
+        # an app's commit fetched one deep comes without its parents: say where to stop
+        history.mark(pack, [ObjectID(commit.encode("ascii")) for _, commit in pins])
         body = {"format": FORMAT, **manifest}
         blob = Blob.from_string(json.dumps(body, indent=2, sort_keys=True).encode())
         pack.object_store.add_object(blob)
@@ -77,6 +81,8 @@ def opened(path: Path) -> Iterator[tuple[dict[str, Any], Repo]]:
     from dulwich.refs import Ref
     from dulwich.repo import Repo
 
+    from reconciler.adapters import history
+
     try:
         stream = path.open("rb")
     except OSError as exc:
@@ -91,6 +97,7 @@ def opened(path: Path) -> Iterator[tuple[dict[str, Any], Repo]]:
         try:
             _store(bundle, pack.object_store, path)
             manifest_id = bundle.references.get(Ref(MANIFEST))
+            history.mark(pack, bundle.references.values())
         finally:
             _release(bundle)
         if manifest_id is None:

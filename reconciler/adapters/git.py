@@ -49,7 +49,7 @@ from dulwich.objects import Blob, Commit, ObjectID, SubmoduleEncountered, Tree
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
-from reconciler.adapters import integrity
+from reconciler.adapters import history, integrity
 from reconciler.adapters.objectsize import object_size, too_large
 from reconciler.adapters.remote import RemoteRefs, Transport
 from reconciler.adapters.wire import durable
@@ -64,7 +64,7 @@ from reconciler.base.errors import (
 from reconciler.base.layout import Layout, slug
 from reconciler.base.reading import MIB
 from reconciler.base.text import escaped
-from reconciler.engine.execution.ports import READ_LIMIT, ambiguous
+from reconciler.engine.execution.ports import READ_LIMIT, Fetched, ambiguous
 from schemas.names import is_hex_commit, redact
 
 BLOBS_LIMIT = 10_000  # files in one app folder; more is not an app folder to compare
@@ -238,21 +238,25 @@ class GitStore:
 
     # -- writes -------------------------------------------------------------------------
 
-    def fetch(self, key: str, url: str, *, skip: str = "") -> None:
-        """Bring `key` up to date with `url`, cloning it when absent or when the URL changed;
-        refs under `skip` (the fleet's status branches) are not fetched."""
+    def fetch(self, key: str, url: str, *, skip: str = "", want: str | None = None,
+              ) -> Fetched:
+        """Bring `key` up to date with `url`, cloning it when absent or when the URL changed:
+        the commit `want` alone (depth 1: an app's pinned tree, not its years of history),
+        or every branch and tag with their history (the fleet's repository, whose history
+        its signatures and status need); refs under `skip` (the fleet's status branches)
+        are not fetched. What came over the wire."""
         self._transport.check(url, "fetch")
         dest = self._checkout_dir(key)
         self._sweep(key)
         current = self.origin_url(key) if dest.exists() else None
         if current == url:
             with Repo(str(dest)) as repo:
-                self._transport.fetch_into(repo, url, skip=skip)
+                done = self._transport.fetch_into(repo, url, skip=skip, want=want)
             integrity.remember(dest)
-            return
+            return done
         if dest.exists():
             self._refuse_edits(key, "cannot switch it to " + redact(url))
-        fresh = self._clone(key, url, skip=skip)
+        fresh, done = self._clone(key, url, skip=skip, want=want)
         try:
             if dest.exists():  # rename(2) may replace the empty directory _temp made
                 os.rename(dest, self._temp(key, "old"))
@@ -262,6 +266,7 @@ class GitStore:
             raise
         fsync_dir(dest.parent)
         self._sweep(key)
+        return done
 
     def repoint(self, key: str, url: str) -> None:
         """See the `Store` port. The old origin's branches and tags move under
@@ -293,7 +298,7 @@ class GitStore:
         self._transport.check(url, "fetch")
         dest = self._checkout_dir(key)
         self._sweep(key)
-        fresh = self._clone(key, url)
+        fresh, _ = self._clone(key, url)
         try:
             aside = self._set_aside(key) if dest.exists() else None
             os.rename(fresh, dest)
@@ -329,6 +334,7 @@ class GitStore:
                 count, records = source.generate_pack_data(have=set(), want=missing)
                 repo.object_store.add_pack_data(count, records)
                 fsync_dir(dest / ".git" / "objects" / "pack")  # before refs name them
+                history.mark(repo, missing)  # a commit a bundle brought one deep
                 integrity.remember(dest)
             if self.origin_url(key) == url:
                 for name, commit in branches.items():
@@ -381,18 +387,18 @@ class GitStore:
                 sha = found.parents[0] if found.parents else None
             return count
 
-    def fetch_objects(self, key: str, url: str) -> None:
+    def fetch_objects(self, key: str, url: str, *, want: str | None = None) -> Fetched:
         """Bring `url`'s commits into the key's object database for a plan to read, moving
         no checkout: HEAD, index and files stay as they are. A missing checkout is created
         (a clone with nothing checked out, as `fetch` makes it); one with another origin
         keeps its origin and refs, the new commits being only added to its objects."""
         dest = self._checkout_dir(key)
         if not dest.exists() or self.origin_url(key) == url:
-            self.fetch(key, url)
-            return
+            return self.fetch(key, url, want=want)
         with Repo(str(dest)) as repo:
-            self._transport.fetch_into(repo, url, mirror=False)
+            done = self._transport.fetch_into(repo, url, mirror=False, want=want)
         integrity.remember(dest)
+        return done
 
     def checkout(self, key: str, commit: str) -> None:
         """Detach HEAD at `commit` and make the index and working tree match it."""
@@ -515,18 +521,19 @@ class GitStore:
             )
         return path
 
-    def _clone(self, key: str, url: str, *, skip: str = "") -> Path:
+    def _clone(self, key: str, url: str, *, skip: str = "", want: str | None = None,
+               ) -> tuple[Path, Fetched]:
         """A new clone of `url` (nothing checked out) in a temporary sibling of the key's
         checkout, for the caller to rename into place; removed again if the fetch fails."""
         fresh = self._temp(key, "clone")
         try:
             with _init(fresh, url) as repo:
-                self._transport.fetch_into(repo, url, skip=skip)
+                done = self._transport.fetch_into(repo, url, skip=skip, want=want)
             integrity.remember(fresh)
         except BaseException:
             shutil.rmtree(fresh, ignore_errors=True)
             raise
-        return fresh
+        return fresh, done
 
     def _set_aside(self, key: str) -> Path:
         """Move the key's checkout to `.<slug>~damaged` (one rename), replacing what an

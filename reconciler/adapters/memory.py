@@ -27,7 +27,14 @@ from reconciler.base.errors import (
 )
 from reconciler.base.layout import Layout, slug
 from reconciler.core.vehicle.policy import GateState
-from reconciler.engine.execution.ports import HEADS, READ_LIMIT, Log, RemoteRefs, ambiguous
+from reconciler.engine.execution.ports import (
+    HEADS,
+    READ_LIMIT,
+    Fetched,
+    Log,
+    RemoteRefs,
+    ambiguous,
+)
 from schemas.names import is_hex_commit
 
 Folder = tuple[str, dict[str, str]]  # (tree hash, file name → text)
@@ -93,16 +100,27 @@ class MemoryStore:
                 self.layout.repository_dir(key).rename(path)
         return path
 
-    def fetch(self, key: str, url: str) -> None:
+    def fetch(self, key: str, url: str, *, want: str | None = None) -> Fetched:
+        """As GitStore: `want` (a commit `url` has) comes alone, added to what the same
+        origin brought before; otherwise every commit. The refs kept are those whose
+        commit the store holds."""
         if url not in self.remotes:
             raise GitError(f"{key}: cannot reach {url}")
         self.fetches += 1
         if self.layout is not None:
             self.layout.repository_dir(key).mkdir(parents=True, exist_ok=True)
-        self.fetched[key] = set(self.remotes[url])
+        same = self.origin_url(key) == url
+        shallow = want is not None and want in self.remotes[url]
+        before = self.fetched.get(key, set()) if same else set()
+        self.fetched[key] = before | {want} if shallow and want is not None \
+            else set(self.remotes[url])
         self.checkouts[key] = (url, self.head(key))
         self.brought.pop(key, None)
-        self.seen[key] = self.ls_remote(url)
+        advertised = self.ls_remote(url)
+        self.seen[key] = RemoteRefs(url=url, default_branch=advertised.default_branch,
+                                    refs={name: commit for name, commit in advertised.refs.items()
+                                          if commit in self.fetched[key]})
+        return Fetched(url=url, shallow=shallow)
 
     def repoint(self, key: str, url: str) -> None:
         """See the `Store` port: no remote is asked; the twin goes on reading the files
@@ -114,16 +132,17 @@ class MemoryStore:
         self.checkouts[key] = (url, head)
         self.seen.pop(key, None)
 
-    def fetch_objects(self, key: str, url: str) -> None:
+    def fetch_objects(self, key: str, url: str, *, want: str | None = None) -> Fetched:
         """Commits of `url` for a plan to read, moving no checkout; a checkout of another
         origin keeps its origin (the twin reads files of its origin's commits only)."""
         if key not in self.checkouts or self.origin_url(key) == url:
-            self.fetch(key, url)
-            return
+            return self.fetch(key, url, want=want)
         if url not in self.remotes:
             raise GitError(f"{key}: cannot reach {url}")
         self.fetches += 1
-        self.fetched[key] |= set(self.remotes[url])
+        shallow = want is not None and want in self.remotes[url]
+        self.fetched[key] |= {want} if shallow and want is not None else set(self.remotes[url])
+        return Fetched(url=url, shallow=shallow)
 
     def ls_remote(self, url: str) -> RemoteRefs:
         if url not in self.remotes:

@@ -26,6 +26,7 @@ from dulwich.refs import Ref
 from dulwich.repo import Repo
 
 from reconciler.base.errors import GitError, PushRefusedError
+from reconciler.engine.execution.ports import Fetched
 from reconciler.engine.execution.ports import RemoteRefs as RemoteRefs
 from schemas.names import redact
 
@@ -90,38 +91,51 @@ class Transport:
             default = next((b for b in ("main", "master") if _HEADS + b in refs), None)
         return RemoteRefs(url=url, refs=refs, default_branch=default)
 
-    def fetch_into(self, repo: Repo, url: str, *, mirror: bool = True, skip: str = "") -> None:
-        """Fetch every branch and tag (but those under `skip`), then mirror them as origin's
-        refs and local tags.
+    def fetch_into(self, repo: Repo, url: str, *, mirror: bool = True, skip: str = "",
+                   want: str | None = None) -> Fetched:
+        """Fetch the commit `want` alone (depth 1), or every branch and tag (but those
+        under `skip`) with their history; then mirror the branches and tags whose commits
+        the store holds as origin's refs and local tags. What came, in bytes.
 
         The refs are written only after the pack is safely stored, so a failed fetch
-        changes nothing; `porcelain.fetch(repo, URL)` would not write them at all. With
-        `mirror=False` (a URL that is not the checkout's origin) the origin's refs stay,
-        and the fetched tips are kept under `refs/lpam/fetched/` so no cleanup drops them.
+        changes nothing; `porcelain.fetch(repo, URL)` would not write them at all. A
+        branch whose tip was not fetched (a shallow fetch brings one commit) is not
+        named: a ref to an absent object would make the store unreadable, and offline the
+        branch is then "known after fetch", not the stale tip. An annotated tag whose tag
+        object did not come names its commit. With `mirror=False` (a URL that is not the
+        checkout's origin) the origin's refs stay, and the fetched tips are kept under
+        `refs/lpam/fetched/` so no cleanup drops them.
         """
         self.check(url, "fetch")
-        answer = self._ask({"op": "fetch", "url": url, "repo": repo.path, "skip": skip}, url,
-                           "fetch")
+        request = {"op": "fetch", "url": url, "repo": repo.path, "skip": skip,
+                   "want": want or ""}
+        answer = self._ask(request, url, "fetch")
         refs: dict[str, str] = answer["refs"]
+        peeled: dict[str, str] = answer.get("peeled", {})
         fetched = {name.encode("utf-8"): sha.encode("ascii") for name, sha in refs.items()}
         missing = [sha for sha in fetched.values() if ObjectID(sha) not in repo.object_store]
-        if missing:  # refs to absent objects would make the store unreadable
+        if want is None and missing:  # refs to absent objects would make the store unreadable
             raise GitError(
                 redact(f"cannot fetch {url}: the server did not send {missing[0].decode()}"),
                 hint=_NETWORK_HINT,
             )
+        if want is not None:
+            fetched = _held(repo, fetched, peeled)
         heads, tags = _under(fetched, b"refs/heads/"), _under(fetched, b"refs/tags/")
         if skip.startswith("refs/heads/"):  # what lpam keeps of them itself stays
             kept = skip.removeprefix("refs/heads/").encode("utf-8")
             heads.update({Ref(name): sha for name, sha in
                           repo.refs.as_dict(Ref(b"refs/remotes/origin")).items()
                           if name.startswith(kept)})
+        done = Fetched(url=url, bytes=int(answer.get("bytes", 0)),
+                       shallow=bool(answer.get("shallow")))
         if not mirror:
             repo.refs.import_refs(Ref(b"refs/lpam/fetched/heads"), heads, prune=True)
             repo.refs.import_refs(Ref(b"refs/lpam/fetched/tags"), tags, prune=True)
-            return
+            return done
         repo.refs.import_refs(Ref(b"refs/remotes/origin"), heads, prune=True)
         repo.refs.import_refs(Ref(b"refs/tags"), tags)
+        return done
 
     def push(self, repo: Repo, url: str, ref: str, new: str) -> None:
         """Set the remote's `ref` to the commit `new` of `repo`, sending what it lacks; a
@@ -156,6 +170,21 @@ class Transport:
         if "error" in answer:
             raise failed(str(answer["error"]))
         return answer
+
+
+def _held(repo: Repo, refs: dict[bytes, bytes],
+          peeled: dict[str, str]) -> dict[bytes, bytes]:
+    """The refs whose objects `repo` holds; an annotated tag whose tag object it lacks,
+    as its commit when the store holds that."""
+    held = {}
+    for name, sha in refs.items():
+        if ObjectID(sha) in repo.object_store:
+            held[name] = sha
+            continue
+        commit = peeled.get(name.decode("utf-8"), "").encode("ascii")
+        if commit and ObjectID(commit) in repo.object_store:
+            held[name] = commit
+    return held
 
 
 def _under(refs: dict[bytes, bytes], prefix: bytes) -> dict[Ref, ObjectID]:

@@ -33,6 +33,7 @@ import re
 import signal
 import socket
 import sys
+import tempfile
 import threading
 from collections.abc import Callable, Iterator, Mapping
 from collections.abc import Set as AbstractSet
@@ -46,6 +47,7 @@ from dulwich.objects import ObjectID
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
+from reconciler.adapters import history
 from reconciler.base.atomic import fsync_dir
 
 if TYPE_CHECKING:
@@ -87,26 +89,128 @@ def ls_remote(url: str) -> dict[str, Any]:
     return {"refs": refs, "head": head.decode("utf-8", "replace") if head else None}
 
 
-def fetch(url: str, repo_path: str, skip: str = "") -> dict[str, Any]:
-    """Fetch the objects of every branch and tag into `repo_path` (but those under `skip`,
-    such as the fleet's status branches); refs stay untouched."""
+def fetch(url: str, repo_path: str, skip: str = "", want: str = "") -> dict[str, Any]:
+    """Fetch into `repo_path` (refs stay untouched; the parent writes them) either the
+    commit `want` alone — its tree, nothing older (depth 1) — or, without `want`, every
+    branch and tag with their history (but those under `skip`, such as the fleet's status
+    branches). The answer: the advertised refs, the bytes of pack the server sent, and
+    whether what came is shallow.
+
+    An app's repository is fetched for one pinned commit, whose history lpam never reads,
+    over what may be a phone's hotspot: `want` asks for that commit by its hash, which
+    protocol v2 servers (GitHub, git daemon) and v0 servers with
+    uploadpack.allowReachableSHA1InWant grant. An older server refuses a commit it does not
+    advertise as a tip: then the tips are fetched with their whole history (a shallow store
+    deepened to full), the one way such a server gives an older commit."""
     client, path = client_for(url)
     skipped = skip.encode("utf-8")
     with Repo(repo_path) as repo:
         durable(repo)
+        target = ObjectID(want.encode("ascii")) if want else None
 
-        def wanted(refs: Mapping[Ref, ObjectID | None], depth: int | None = None) -> list[ObjectID]:
-            tips = [sha for name, sha in refs.items() if sha is not None and _is_tip(name)
-                    and not (skipped and name.startswith(skipped))]
-            return [sha for sha in dict.fromkeys(tips) if sha not in repo.object_store]
+        def tips(refs: Mapping[Ref, ObjectID | None], depth: int | None = None,
+                 ) -> list[ObjectID]:
+            found = [sha for name, sha in refs.items() if sha is not None and _is_tip(name)
+                     and not (skipped and name.startswith(skipped))]
+            return [sha for sha in dict.fromkeys(found) if deepen or sha not in repo.object_store]
 
-        result = client.fetch(path.encode("utf-8"), repo, determine_wants=wanted)
-    packs = os.path.join(repo_path, ".git", "objects", "pack")
-    if os.path.isdir(packs):
-        fsync_dir(Path(packs))  # the renames that put the pack and its index in place
-    refs = {name: sha for name, sha in _text_refs(result.refs).items()
+        def commit(refs: Mapping[Ref, ObjectID | None], depth: int | None = None,
+                   ) -> list[ObjectID]:
+            return [] if target is None or target in repo.object_store else [target]
+
+        deepen = False
+        if target is None:
+            result, brought = _fetch(client, path, repo, tips, None)
+        else:
+            try:
+                result, brought = _fetch(client, path, repo, commit, 1)
+            except GitProtocolError:  # "not our ref": a server that grants tips only
+                deepen = bool(repo.get_shallow())
+                result, brought = _fetch(client, path, repo, tips, _FULL if deepen else None)
+        packs = os.path.join(repo_path, ".git", "objects", "pack")
+        if os.path.isdir(packs):
+            fsync_dir(Path(packs))  # the renames that put the pack and its index in place
+        shallow = target is not None and target in repo.get_shallow()
+    advertised = _text_refs(result.refs)
+    refs = {name: sha for name, sha in advertised.items()
             if not name.endswith(_PEELED.decode()) and not (skip and name.startswith(skip))}
-    return {"refs": refs}
+    peeled = {name[: -len(_PEELED)]: sha for name, sha in advertised.items()
+              if name.endswith(_PEELED.decode())}
+    if shallow and not peeled and any(name.startswith("refs/tags/") for name in refs):
+        peeled = _peeled(client, path, refs)
+    return {"refs": refs, "peeled": peeled, "bytes": brought, "shallow": shallow}
+
+
+def _peeled(client: GitClient, path: str, refs: dict[str, str]) -> dict[str, str]:
+    """Each annotated tag's commit. A shallow fetch brings no tag object, so the parent
+    names a tag by its commit; protocol v2's fetch lists refs unpeeled, so ask the list
+    again with them (a local repository: peel them here)."""
+    from dulwich.client import LocalGitClient
+
+    if isinstance(client, LocalGitClient):
+        listed = _peel_local(path, refs)
+    else:
+        listed = _text_refs(client.get_refs(path.encode("utf-8")).refs)
+    return {name[: -len(_PEELED)]: sha for name, sha in listed.items()
+            if name.endswith(_PEELED.decode())}
+
+
+_FULL = 2**31 - 1
+"""The depth that makes a shallow store whole again (git's `fetch --unshallow` asks it)."""
+
+
+def _fetch(client: GitClient, path: str, repo: Repo,
+           wants: Callable[..., list[ObjectID]], depth: int | None) -> tuple[Any, int]:
+    """One fetch into `repo`: the server's answer and the bytes of pack it sent.
+
+    dulwich's `GitClient.fetch` tells the server only the commits under refs/heads, which
+    lpam does not keep (its checkouts are detached, the remote's branches under
+    refs/remotes/origin): the server then sends every object again. The walker here
+    offers every commit a ref (HEAD included) names, so a new commit brings what the
+    store lacks and nothing more. A local repository is copied by dulwich directly."""
+    from dulwich.client import LocalGitClient
+
+    if isinstance(client, LocalGitClient):
+        before = _pack_bytes(repo)
+        result = client.fetch(path.encode("utf-8"), repo, determine_wants=wants, depth=depth)
+        return result, _pack_bytes(repo) - before
+    brought = 0
+    spool = os.fspath(repo.object_store.path)
+    with tempfile.SpooledTemporaryFile(max_size=_SPOOL, dir=spool) as pack:
+
+        def write(data: bytes) -> int:
+            nonlocal brought
+            brought += len(data)
+            return pack.write(data)
+
+        walker = repo.get_graph_walker(heads=_heads(repo))
+        result = client.fetch_pack(path.encode("utf-8"), wants, walker, write, depth=depth)
+        if pack.tell():
+            pack.seek(0)
+            repo.object_store.add_thin_pack(pack.read, None)
+    repo.update_shallow(result.new_shallow, result.new_unshallow)
+    history.durable(repo)
+    return result, brought
+
+
+_SPOOL = 16 * 1024 * 1024  # a pack up to this size is held in memory, a larger one on disk
+
+
+def _heads(repo: Repo) -> list[ObjectID]:
+    """Every commit a ref of `repo` names (tags peeled) and every commit fetched alone
+    (listed as shallow: a pinned commit no branch names any more), for the server to
+    leave out what they hold."""
+    heads = []
+    for sha in dict.fromkeys([*repo.get_refs().values(), *sorted(repo.get_shallow())]):
+        if sha in repo.object_store:
+            with contextlib.suppress(KeyError):
+                heads.append(peel_sha(repo.object_store, sha)[1].id)
+    return list(dict.fromkeys(heads))
+
+
+def _pack_bytes(repo: Repo) -> int:
+    packs = Path(repo.object_store.path) / "pack"
+    return sum(p.stat().st_size for p in packs.glob("*.pack")) if packs.is_dir() else 0
 
 
 def durable(repo: Repo) -> None:
@@ -285,7 +389,8 @@ def answer(request: dict[str, str]) -> dict[str, Any]:
             return ls_remote(request["url"])
         if request["op"] == "push":
             return push(request["url"], request["repo"], request["ref"], request["new"])
-        return fetch(request["url"], request["repo"], request.get("skip", ""))
+        return fetch(request["url"], request["repo"], request.get("skip", ""),
+                     request.get("want", ""))
     except _transport_errors() as exc:
         if request["op"] == "push" and refusal(exc):
             return {"error": reason(exc, request["url"]), "refused": True}

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from reconciler.core.planning.model import Targets
     from reconciler.engine.observe.targets import Fetch
     from schemas.desired import DesiredState
-    from schemas.plan import Plan
+    from schemas.plan import FetchedRepository, Plan
     from schemas.record import StateRecord
 
 
@@ -125,10 +125,20 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
                      offline=fetch is Fetch.OFFLINE)
     if busy is None:  # under the lock (or with no apply beside it): what it leaves owed ends
         made = settling(made, observed.record)
+    made = made.model_copy(update={"fetched": fetched(targets)})
     report(Phase("plan"))
     if busy is None and observed.interrupted:
         report(Note(interrupted_note(observed.interrupted, made)))
     return store, made
+
+
+def fetched(targets: Targets) -> list[FetchedRepository]:
+    """What resolving fetched, per repository (ROS sources included), for `plan --json`."""
+    from schemas.plan import FetchedRepository
+
+    repos = [*targets.repositories, *(r.repo for a in targets.apps for r in a.deps.ros)]
+    return [FetchedRepository(key=r.key, bytes=r.fetched, shallow=r.fetched_alone)
+            for r in repos if r.fetched is not None]
 
 
 def busy_note(busy: str) -> str:

@@ -120,8 +120,10 @@ class Car:
         self.services = MemoryServices()
         self.clock = 0.0
         apps = []
+        # Both commits in the store: the apps of this world come from either commit of one
+        # repository, whose target is C1 (a shallow fetch of C1 would not bring C2).
+        self.store.fetch(KEY, URL)
         for (name, commit, params), status in zip(installed, statuses):
-            self.store.fetch(KEY, URL)
             self.store.checkout(KEY, commit)
             app = record_of(name, commit, params, status)
             generations.stage(self.layout, self.store, generations.Generation(

@@ -49,6 +49,8 @@ class RepoTarget:
     as_of_last_fetch: bool = False
     no_catalog: bool = False  # an app repository whose commit has no libpanda-apps.yaml
     in_store: bool = False  # a pinned commit the store holds: its checkout needs no network
+    fetched: int | None = None  # bytes fetched to resolve it (None: no fetch)
+    fetched_alone: bool = False  # the fetch brought the commit without its history
 
 
 @dataclass(frozen=True)

@@ -54,7 +54,11 @@ class Store(Protocol):
 
     def local_edits(self, key: str) -> list[str]: ...
 
-    def fetch(self, key: str, url: str) -> None: ...
+    def fetch(self, key: str, url: str, *, want: str | None = None) -> Fetched:
+        """Bring `key` up to date with `url` (a clone when absent or when the URL changed):
+        the commit `want` alone when given (its tree, not its history: what an app needs),
+        else every branch and tag with their history. What came over the wire."""
+        ...
 
     def repoint(self, key: str, url: str) -> None:
         """Make `url` the checkout's origin without the network, for a checkout that already
@@ -89,6 +93,16 @@ and a blob read whole into memory must not be able to exhaust the Pi's."""
 
 HEADS = "refs/heads/"
 TAGS = "refs/tags/"
+
+
+@dataclass(frozen=True)
+class Fetched:
+    """What one fetch brought: the bytes of pack the server sent (a local path: the bytes
+    stored), and whether it was one commit without its history."""
+
+    url: str
+    bytes: int = 0
+    shallow: bool = False
 
 
 @dataclass(frozen=True)
@@ -128,7 +142,7 @@ class Resolving(Store, Protocol):
         """The regular file `commit:path`, at most `limit` bytes (GitError beyond)."""
         ...
 
-    def fetch_objects(self, key: str, url: str) -> None: ...
+    def fetch_objects(self, key: str, url: str, *, want: str | None = None) -> Fetched: ...
 
     def ls_remote(self, url: str) -> RemoteRefs: ...
 

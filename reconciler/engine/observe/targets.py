@@ -58,7 +58,7 @@ from schemas.names import is_hex_commit, redact
 from schemas.service import DEFAULT_HEALTH_TIMEOUT, DEFAULT_SETTLE_SECONDS, Health
 
 if TYPE_CHECKING:
-    from reconciler.engine.execution.ports import Resolving
+    from reconciler.engine.execution.ports import Fetched, Resolving
 
 FETCH_WORKERS = 4
 ROS_KEY_PREFIX = "@ros/"  # store keys of ROS repositories: never an app repository's key
@@ -115,11 +115,26 @@ def _parallel(work: Callable[[_In], _Out], items: Sequence[_In], fetch: Fetch) -
     return [work(item) for item in items]
 
 
-def _bring(store: Resolving, key: str, url: str, fetch: Fetch) -> None:
-    if fetch is Fetch.CHECKOUT:
-        store.fetch(key, url)
-    elif fetch is Fetch.OBJECTS:
-        store.fetch_objects(key, url)
+def _bring(store: Resolving, key: str, url: str, fetch: Fetch, want: str | None,
+           notice: Notice) -> Fetched | None:
+    """Fetch what resolving `key` needs: the commit `want` alone (a full hash), else
+    every branch and tag. The bytes that came, also told to the user: on a phone's
+    hotspot they are what an update costs."""
+    if fetch is Fetch.OFFLINE:
+        return None
+    done = store.fetch(key, url, want=want) if fetch is Fetch.CHECKOUT \
+        else store.fetch_objects(key, url, want=want)
+    what = "the commit alone" if done.shallow else "with its history"
+    notice(f"fetched {key} from {redact(url)}: {_size(done.bytes)} ({what})")
+    return done
+
+
+def _size(count: int) -> str:
+    """Bytes as a person reads them: 61.3 kB, 3.7 MB."""
+    for unit, scale in (("MB", 1e6), ("kB", 1e3)):
+        if count >= scale:
+            return f"{count / scale:.1f} {unit}"
+    return f"{count} bytes"
 
 
 def sound_copy(store: Resolving, key: str, url: str, *, renew: bool, notice: Notice) -> None:
@@ -146,13 +161,15 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: Resolving,
         if commit is not None:
             return RepoTarget(key=key, url=url, ref=ref, commit=commit, in_store=True)
         if fetch is not Fetch.OFFLINE:
-            _bring(store, key, url, fetch)
+            want = ref.lower() if len(ref) == 40 else None
+            fetched = _bring(store, key, url, fetch, want, notice)
             commit = store.resolve_local(key, ref)
             if commit is None:
                 raise RefNotFoundError(
                     f"commit {ref} not found in {redact(url)}",
                     hint="check the hash (is it pushed?); nothing on the machine was changed",
                 )
+            return _fetched(RepoTarget(key=key, url=url, ref=ref, commit=commit), fetched)
         elif commit is None and len(ref) == 40:
             commit = ref
     elif fetch is Fetch.OFFLINE:
@@ -173,8 +190,15 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: Resolving,
             )
         if not store.has_commit(key, commit) or \
                 (fetch is Fetch.CHECKOUT and store.origin_url(key) != url):
-            _bring(store, key, url, fetch)
+            fetched = _bring(store, key, url, fetch, commit, notice)
+            return _fetched(RepoTarget(key=key, url=url, ref=ref, commit=commit), fetched)
     return RepoTarget(key=key, url=url, ref=ref, commit=commit)
+
+
+def _fetched(target: RepoTarget, done: Fetched | None) -> RepoTarget:
+    if done is None:
+        return target
+    return replace(target, fetched=done.bytes, fetched_alone=done.shallow)
 
 
 NO_CATALOG = Catalog()  # what a commit without libpanda-apps.yaml offers: nothing

@@ -36,7 +36,7 @@ def build(step: BuildStep, ctx: Context) -> None:
         src = workspace.prepare(key)
         for name, commit in sorted(step.ros.items()):
             if not ctx.store.has_commit(step.ros_keys[name], commit):
-                ctx.store.fetch(step.ros_keys[name], step.ros_urls[name])
+                ctx.store.fetch(step.ros_keys[name], step.ros_urls[name], want=commit)
             ctx.store.export_folder(step.ros_keys[name], commit, "", src / name)
         workspace.build(key, log=ctx.log)
 

@@ -28,7 +28,7 @@ def check_out(step: CheckoutStep, ctx: Context) -> None:
         ctx.log(damage.renew(ctx.store, key, url, exc.damage))
         present = ctx.store.has_commit(key, commit)
     if not present:
-        ctx.store.fetch(key, url)
+        ctx.store.fetch(key, url, want=commit)
     elif ctx.store.origin_url(key) != url:
         # a pinned repository moved to another URL: the commit it needs is here already,
         # so no network (the plan said so: core/planning/diff.py)
