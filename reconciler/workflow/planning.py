@@ -92,7 +92,7 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
     from reconciler.core.planning.plan import make_plan
     from reconciler.core.planning.settling import settling
     from reconciler.engine.observe.machine import asks_manager, observe
-    from reconciler.engine.observe.targets import Fetch, resolve
+    from reconciler.engine.observe.targets import Fetch, fetched_note, resolve
     from reconciler.engine.records.legacy.appdir import libpanda_user
     from reconciler.engine.records.state import read_record
 
@@ -109,6 +109,9 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
                       default_user=libpanda_user(layout), root=layout.root,
                       notice=lambda text: report(Note(text)))
     refuse_shared_claims(path, places, targets)  # every plan and apply passes here
+    said = fetched_note(targets)
+    if said is not None:
+        report(Note(said))
     report(Phase("resolve"))
     needs = any(a.deps.how for a in targets.apps)  # apt, pip or ROS
     observed = observe(layout, store, targets,
@@ -134,11 +137,11 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
 
 def fetched(targets: Targets) -> list[FetchedRepository]:
     """What resolving fetched, per repository (ROS sources included), for `plan --json`."""
+    from reconciler.engine.observe import targets as resolving
     from schemas.plan import FetchedRepository
 
-    repos = [*targets.repositories, *(r.repo for a in targets.apps for r in a.deps.ros)]
-    return [FetchedRepository(key=r.key, bytes=r.fetched, shallow=r.fetched_alone)
-            for r in repos if r.fetched is not None]
+    return [FetchedRepository(key=r.key, bytes=r.fetched or 0, shallow=r.fetched_alone)
+            for r in resolving.fetched(targets)]
 
 
 def busy_note(busy: str) -> str:

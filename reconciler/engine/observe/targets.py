@@ -115,18 +115,37 @@ def _parallel(work: Callable[[_In], _Out], items: Sequence[_In], fetch: Fetch) -
     return [work(item) for item in items]
 
 
-def _bring(store: Resolving, key: str, url: str, fetch: Fetch, want: str | None,
-           notice: Notice) -> Fetched | None:
+def _bring(store: Resolving, key: str, url: str, fetch: Fetch,
+           want: str | None) -> Fetched | None:
     """Fetch what resolving `key` needs: the commit `want` alone (a full hash), else
-    every branch and tag. The bytes that came, also told to the user: on a phone's
-    hotspot they are what an update costs."""
+    every branch and tag. What came (`fetched_note` tells the user)."""
     if fetch is Fetch.OFFLINE:
         return None
-    done = store.fetch(key, url, want=want) if fetch is Fetch.CHECKOUT \
-        else store.fetch_objects(key, url, want=want)
-    what = "the commit alone" if done.shallow else "with its history"
-    notice(f"fetched {key} from {redact(url)}: {_size(done.bytes)} ({what})")
-    return done
+    if fetch is Fetch.CHECKOUT:
+        return store.fetch(key, url, want=want)
+    return store.fetch_objects(key, url, want=want)
+
+
+def fetched(targets: Targets) -> list[RepoTarget]:
+    """The repositories (ROS sources included) resolving fetched something for."""
+    return [r for r in (*targets.repositories,
+                        *(s.repo for a in targets.apps for s in a.deps.ros))
+            if r.fetched is not None]
+
+
+def fetched_note(targets: Targets) -> str | None:
+    """What resolving fetched, in one line: on a phone's hotspot or a metered link, the
+    bytes are what an update costs. None when nothing was fetched."""
+    repos = fetched(targets)
+    if not repos:
+        return None
+    alone = all(r.fetched_alone for r in repos)
+    total = _size(sum(r.fetched or 0 for r in repos))
+    if len(repos) == 1:
+        what = "the commit alone" if alone else "with its history"
+        return f"fetched {repos[0].key} from {redact(repos[0].url)}: {total} ({what})"
+    what = "each commit alone" if alone else "some with their history"
+    return f"fetched {len(repos)} repositories: {total} in all ({what})"
 
 
 def _size(count: int) -> str:
@@ -162,7 +181,7 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: Resolving,
             return RepoTarget(key=key, url=url, ref=ref, commit=commit, in_store=True)
         if fetch is not Fetch.OFFLINE:
             want = ref.lower() if len(ref) == 40 else None
-            fetched = _bring(store, key, url, fetch, want, notice)
+            fetched = _bring(store, key, url, fetch, want)
             commit = store.resolve_local(key, ref)
             if commit is None:
                 raise RefNotFoundError(
@@ -190,7 +209,7 @@ def _resolve_ref(key: str, url: str, ref: str | None, store: Resolving,
             )
         if not store.has_commit(key, commit) or \
                 (fetch is Fetch.CHECKOUT and store.origin_url(key) != url):
-            fetched = _bring(store, key, url, fetch, commit, notice)
+            fetched = _bring(store, key, url, fetch, commit)
             return _fetched(RepoTarget(key=key, url=url, ref=ref, commit=commit), fetched)
     return RepoTarget(key=key, url=url, ref=ref, commit=commit)
 
