@@ -75,6 +75,9 @@ class ObjectFiles:
         self._store: GitStore | None = None
         self._packs: dict[str, list[_Pack]] = {}
 
+    def location(self, key: str) -> Path:
+        return self._layout.repository_dir(key)
+
     def has_commit(self, key: str, commit: str) -> bool:
         git = self._layout.repository_dir(key) / ".git"
         if not git.is_dir():

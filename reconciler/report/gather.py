@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Protocol
 
 from reconciler.base.errors import ConfigError, GitError, LpamError, StoreDamagedError
 from reconciler.base.layout import Layout
-from reconciler.core.documents import parse_catalog
+from reconciler.engine.records import catalogs
 from reconciler.engine.records.bluetooth import read_service
 from reconciler.engine.records.state import read_agent_status, read_override, read_record
 from reconciler.report.exposure import Files, Found, watched
@@ -52,6 +52,10 @@ class Objects(Protocol):
     def read_file(self, key: str, commit: str, path: str) -> bytes | None: ...
 
     def damage(self, key: str) -> str | None: ...
+
+    def location(self, key: str) -> Path:
+        """The key's checkout (parsed catalogs are kept in its .git)."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -171,7 +175,7 @@ def _listing(record: StateRecord, repo: RepositoryRecord, store: Objects) -> Lis
         return Listing(repo.key, ref, short, note="(no libpanda-apps.yaml)")
     label = Path(f"{repo.key}@{short}/{CATALOG_FILE}")
     try:
-        catalog = parse_catalog(label, data.decode("utf-8", "replace"))
+        catalog = catalogs.parsed(store.location(repo.key), label, data)
     except ConfigError as exc:
         return Listing(repo.key, ref, short, note=f"(catalog unreadable: {exc.message})")
     apps = []

@@ -171,6 +171,9 @@ class Untouchable:
     def damage(self, key: str) -> str | None:
         raise AssertionError("read the store")
 
+    def location(self, key: str) -> Path:
+        raise AssertionError("read the store")
+
 
 def test_the_installed_apps_alone_read_no_catalog(tmp_path: Path) -> None:
     """The published status and the phone's summary show the installed apps: their report

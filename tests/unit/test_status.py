@@ -29,6 +29,9 @@ class Blobs:
         self.damaged: dict[str, str] = {}  # key → damage: its objects unreadable
         self.lost: set[str] = set()  # damaged keys whose objects seem absent (a lost index)
 
+    def location(self, key: str) -> Path:
+        return Path("/nonexistent/lpam-test") / key  # no checkout: no parsed catalog kept
+
     def has_commit(self, key: str, commit: str) -> bool:
         if key in self.lost:
             return False

@@ -32,7 +32,6 @@ from typing import TYPE_CHECKING, TypeVar
 from reconciler.base.errors import CatalogError, GitError, RefNotFoundError, StoreDamagedError
 from reconciler.base.layout import Layout
 from reconciler.base.unit import check_unit_name
-from reconciler.core.documents import parse_catalog
 from reconciler.core.planning.model import (
     LIFECYCLE_SCRIPTS,
     UNKNOWN,
@@ -45,7 +44,7 @@ from reconciler.core.planning.model import (
     WorkspaceTarget,
     short,
 )
-from reconciler.engine.records import damage
+from reconciler.engine.records import catalogs, damage
 from schemas.catalog import (
     CATALOG_FILE,
     SERVICE_PREFIX,
@@ -233,7 +232,7 @@ def _catalog(store: Resolving, repo: RepoTarget) -> Catalog | None:
     if data is None:
         return NO_CATALOG
     label = Path(f"{repo.key}@{short(repo.commit)}/{CATALOG_FILE}")
-    return parse_catalog(label, data.decode("utf-8", "replace"))
+    return catalogs.parsed(store.location(repo.key), label, data)
 
 
 def _resolve_app(
