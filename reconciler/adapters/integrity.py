@@ -19,6 +19,12 @@ readers (those fail deep inside, with messages about mmaps and zlib, or not at a
 
 Not checked: that every object a commit reaches is present (`git fsck --full` inflates
 every object; a pack whose checksum holds is whole).
+
+The config and the refs are read first from git's files (adapters/gitfiles.py), without
+importing dulwich: the shim's reading flags check every copy before they list it (issue
+32). What those files cannot tell for certain (a config or a ref out of the ordinary, a
+ref naming an object not found there) is checked through dulwich as before, so the
+answer, and the phrase naming what is wrong, are the same either way.
 """
 
 from __future__ import annotations
@@ -32,8 +38,7 @@ import zlib
 from collections.abc import Callable
 from pathlib import Path
 
-from dulwich.repo import Repo
-
+from reconciler.adapters import gitfiles
 from reconciler.base.atomic import write_atomic
 
 _CHUNK = 1024 * 1024
@@ -64,10 +69,15 @@ def _reason(exc: BaseException) -> str:
 
 
 def _config(git: Path) -> str | None:
-    from dulwich.config import ConfigFile
-
     if not (git / "HEAD").is_file():
         return "HEAD is missing"
+    try:
+        gitfiles.config(git)  # a config of the plain shape dulwich certainly parses
+        return None
+    except Exception:  # gitfiles.Unsure, or unreadable: dulwich's parser decides
+        pass
+    from dulwich.config import ConfigFile
+
     ConfigFile.from_path(str(git / "config"))
     return None
 
@@ -197,6 +207,13 @@ def _loose(git: Path) -> str | None:
 
 
 def _refs(git: Path) -> str | None:
+    try:
+        _refs_read(git)
+        return None
+    except Exception:  # gitfiles.Unsure, or unreadable: dulwich decides and names it
+        pass
+    from dulwich.repo import Repo
+
     with Repo(str(git.parent)) as repo:
         for name in sorted(repo.refs.allkeys()):
             try:
@@ -208,6 +225,17 @@ def _refs(git: Path) -> str | None:
                 return f"{text} names {sha.decode('ascii')[:12]}, which is not in the " \
                     "store (a pack or its index is gone)"
     return None
+
+
+def _refs_read(git: Path) -> None:
+    """`_refs` from git's files: None when dulwich would open the checkout and find every
+    ref's object; Unsure otherwise (damage included: dulwich's check then names it)."""
+    gitfiles.plain(git)
+    found, holds = gitfiles.refs(git), gitfiles.holder(git)
+    for name in found.names():
+        sha = found.value(name)
+        if sha is not None and not holds(bytes.fromhex(sha)):
+            raise gitfiles.Unsure(f"{name} names {sha}, not found here")
 
 
 def _index(git: Path) -> str | None:

@@ -25,6 +25,15 @@ again of `GitStore`, which answers them as it always has (its damage check, its
 StoreDamagedError), at the price of dulwich's import on that path only. Like `GitStore`,
 a symbolic link is never followed and a file larger than the limit is refused from its
 header, before it is inflated.
+
+The shim's reading flags (`libpanda-app-manager -d/-l/-c/-t`, workflow/inventory.py) also
+resolve the default desired state offline through it, so it is the store the resolver
+asks (the `Resolving` port): it checks each copy (`adapters.integrity`, as `GitStore.damage`
+does), expands a full commit hash, and reads a checkout's origin and what the last fetch
+saw of its branches and tags from git's config and ref files (adapters/gitfiles.py),
+peeling an annotated tag by reading its object here. The same rule holds: anything not
+read for certain, and every other operation of the port (the network, the writes), is
+`GitStore`'s.
 """
 
 from __future__ import annotations
@@ -32,12 +41,12 @@ from __future__ import annotations
 import os
 import re
 import stat
-import struct
 import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO
 
+from reconciler.adapters import gitfiles, integrity
 from reconciler.adapters.objectsize import (
     delta_varint,
     entry_size,
@@ -46,7 +55,8 @@ from reconciler.adapters.objectsize import (
     too_large,
 )
 from reconciler.base.errors import LpamError
-from reconciler.engine.execution.ports import READ_LIMIT
+from reconciler.engine.execution.ports import READ_LIMIT, RemoteRefs
+from schemas.names import is_hex_commit
 
 if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
@@ -60,6 +70,7 @@ _OFS_DELTA, _REF_DELTA = 6, 7
 _CHUNK = 64 * 1024
 _MAX_CHAIN = 10_000  # deltas on deltas: git's default depth is 50
 _NAME = re.compile(r"[0-9a-f]{40}")
+_MAX_PEEL = 100  # tags of tags
 
 
 class _NotHere(Exception):
@@ -67,8 +78,8 @@ class _NotHere(Exception):
 
 
 class ObjectFiles:
-    """`reconciler.report.gather.Objects` over the store's checkouts, dulwich-free where
-    it can be (module docstring); `GitStore` for the rest."""
+    """`reconciler.report.gather.Objects` and the `Resolving` port over the store's
+    checkouts, dulwich-free where it can be (module docstring); `GitStore` for the rest."""
 
     def __init__(self, layout: Layout) -> None:
         self._layout = layout
@@ -105,7 +116,123 @@ class ObjectFiles:
             return self._git().read_file(key, commit, path, limit=limit)
 
     def damage(self, key: str) -> str | None:
-        return self._git().damage(key)
+        """As `GitStore.damage`: what is wrong with the key's checkout; None when it is
+        sound or absent (adapters.integrity, which reads the config and refs without
+        dulwich where it can)."""
+        path = self._layout.repository_dir(key)
+        if not (path / ".git").is_dir():
+            return None
+        return integrity.damage(path)
+
+    def location(self, key: str) -> Path:
+        return self._layout.repository_dir(key)
+
+    def origin_url(self, key: str) -> str | None:
+        git = self._layout.repository_dir(key) / ".git"
+        if not git.is_dir():
+            return None
+        try:
+            return gitfiles.plain(git).get(("remote", "origin"), {}).get("url")
+        except Exception:  # gitfiles.Unsure, or a read that failed: GitStore's answer
+            return self._git().origin_url(key)
+
+    def local_refs(self, key: str) -> RemoteRefs | None:
+        """As `GitStore.local_refs`: what the last fetch saw of origin's branches and tags
+        (peeled), from the ref files."""
+        git = self._layout.repository_dir(key) / ".git"
+        if not git.is_dir():
+            return None
+        try:
+            return self._local_refs(key, git)
+        except LpamError:
+            raise
+        except Exception:  # gitfiles.Unsure, _NotHere, or a read that failed
+            return self._git().local_refs(key)
+
+    def resolve_local(self, key: str, ref: str) -> str | None:
+        """As `GitStore.resolve_local`; a full hash is looked up here, an abbreviated one
+        (every object's name must be searched) by `GitStore`."""
+        ref = ref.lower()
+        if not is_hex_commit(ref):
+            return None
+        git = self._layout.repository_dir(key) / ".git"
+        if not git.is_dir():
+            return None
+        try:
+            if len(ref) == 40:
+                gitfiles.plain(git)
+                return ref if self._object(key, git, bytes.fromhex(ref))[0] == b"commit" \
+                    else None
+        except LpamError:
+            raise
+        except Exception:  # _NotHere, gitfiles.Unsure, or a read that failed
+            pass
+        return self._git().resolve_local(key, ref)
+
+    # -- the rest of the port: GitStore's, unchanged ------------------------------------
+
+    def head(self, key: str) -> str | None:
+        return self._git().head(key)
+
+    def local_edits(self, key: str) -> list[str]:
+        return self._git().local_edits(key)
+
+    def folder_tree(self, key: str, commit: str, folder: str) -> str | None:
+        return self._git().folder_tree(key, commit, folder)
+
+    def folder_files(self, key: str, commit: str, folder: str) -> list[str]:
+        return self._git().folder_files(key, commit, folder)
+
+    def folder_blobs(self, key: str, commit: str, folder: str) -> dict[str, str] | None:
+        return self._git().folder_blobs(key, commit, folder)
+
+    def ls_remote(self, url: str) -> RemoteRefs:
+        return self._git().ls_remote(url)
+
+    def fetch(self, key: str, url: str) -> None:
+        self._git().fetch(key, url)
+
+    def fetch_objects(self, key: str, url: str) -> None:
+        self._git().fetch_objects(key, url)
+
+    def renew(self, key: str, url: str) -> Path | None:
+        return self._git().renew(key, url)
+
+    def repoint(self, key: str, url: str) -> None:
+        self._git().repoint(key, url)
+
+    def checkout(self, key: str, commit: str) -> None:
+        self._git().checkout(key, commit)
+
+    def remove(self, key: str) -> None:
+        self._git().remove(key)
+
+    def export_folder(self, key: str, commit: str, folder: str, dest: Path) -> str:
+        return self._git().export_folder(key, commit, folder, dest)
+
+    def _local_refs(self, key: str, git: Path) -> RemoteRefs:
+        url = gitfiles.plain(git).get(("remote", "origin"), {}).get("url")
+        found = gitfiles.refs(git)
+        refs = {"refs/heads/" + name: sha
+                for name, sha in sorted(found.under("refs/remotes/origin").items())}
+        for name, sha in sorted(found.under("refs/tags").items()):
+            peeled = found.cached_peel("refs/tags/" + name)
+            refs["refs/tags/" + name] = peeled if peeled is not None else \
+                self._peel(key, git, sha)
+        default = next((b for b in ("main", "master") if "refs/heads/" + b in refs), None)
+        return RemoteRefs(url=url or "", refs=refs, default_branch=default)
+
+    def _peel(self, key: str, git: Path, sha: str) -> str:
+        """The object an annotated tag (of tags) names in the end; `sha` when not a tag."""
+        for _ in range(_MAX_PEEL):
+            kind, data = self._object(key, git, bytes.fromhex(sha))
+            if kind != b"tag":
+                return sha
+            if not data.startswith(b"object ") or data[47:48] != b"\n" \
+                    or not _NAME.fullmatch(data[7:47].decode("ascii")):
+                raise _NotHere("a tag that does not name its object first")
+            sha = data[7:47].decode("ascii")
+        raise _NotHere("a chain of tags too long")
 
     def _git(self) -> GitStore:
         if self._store is None:
@@ -207,27 +334,7 @@ class _Pack:
 
     def offset(self, name: bytes) -> int | None:
         """Where object `name` starts in the pack; None when the pack does not hold it."""
-        index = self._read_index()
-        first = name[0]
-        low = struct.unpack_from(">L", index, _FANOUT + 4 * (first - 1))[0] if first else 0
-        high, count = struct.unpack_from(">L", index, _FANOUT + 4 * first)[0], \
-            struct.unpack_from(">L", index, _FANOUT + 4 * 255)[0]
-        names = _FANOUT + 256 * 4
-        while low < high:
-            middle = (low + high) // 2
-            found = index[names + middle * _SHA:names + (middle + 1) * _SHA]
-            if found == name:
-                offsets = names + count * (_SHA + 4)
-                small = struct.unpack_from(">L", index, offsets + middle * 4)[0]
-                if not small & 0x80000000:
-                    return int(small)
-                large = offsets + count * 4 + (small & 0x7FFFFFFF) * 8
-                return int(struct.unpack_from(">Q", index, large)[0])
-            if found < name:
-                low = middle + 1
-            else:
-                high = middle
-        return None
+        return gitfiles.index_offset(self._read_index(), name)
 
     def read(self, offset: int, named: Callable[[bytes], tuple[bytes, bytes]]
              ) -> tuple[bytes, bytes]:

@@ -10,6 +10,11 @@ those repositories, so both say the same thing; a repository never fetched has n
 yet. Every installed app is enabled (a car runs several side by side since issue 22: a
 controller that owns the panda beside a recorder and a tracker); whether each runs is
 asked of its service manager.
+
+The store read here is `adapters.objectfiles.ObjectFiles`: the desired state is resolved,
+each copy checked and its files read from git's own files, without importing dulwich
+(issue 32: the table is asked often, on a Pi); what those files cannot answer for certain
+is asked of `GitStore`, as before.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from reconciler.workflow import override
 from reconciler.workflow.machine import Machine
 
 if TYPE_CHECKING:
-    from reconciler.adapters.git import GitStore
+    from reconciler.adapters.objectfiles import ObjectFiles
     from schemas.desired import DesiredState, RepositorySpec
     from schemas.record import RepositoryRecord
     from schemas.report import StatusReport
@@ -31,6 +36,7 @@ if TYPE_CHECKING:
 def report(machine: Machine) -> StatusReport:
     """The status report over the repositories of the default desired state, offline:
     its `apps` are the table's rows, its `installed` the apps that are enabled."""
+    from reconciler.adapters.objectfiles import ObjectFiles
     from reconciler.base.loading import load
     from reconciler.core.documents import desired_from
     from reconciler.engine.records.state import read_record
@@ -38,7 +44,7 @@ def report(machine: Machine) -> StatusReport:
 
     found = override.editable(machine)
     desired = desired_from(load(found.path, found.text))
-    store = machine.store()
+    store = ObjectFiles(machine.layout)
     record = read_record(machine.layout)
     repositories = [r for r in (_offline(machine, store, desired, spec, found.path)
                                 for spec in desired.repositories) if r is not None]
@@ -46,7 +52,7 @@ def report(machine: Machine) -> StatusReport:
                          record=record.model_copy(update={"repositories": repositories}))
 
 
-def _offline(machine: Machine, store: GitStore, desired: DesiredState, spec: RepositorySpec,
+def _offline(machine: Machine, store: ObjectFiles, desired: DesiredState, spec: RepositorySpec,
              path: Path) -> RepositoryRecord | None:
     """The commit `spec` resolves to with no network, as a record's entry (None: not
     known here yet, or its copy is damaged: no rows until an apply fetches it)."""
