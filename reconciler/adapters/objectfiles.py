@@ -124,9 +124,6 @@ class ObjectFiles:
             return None
         return integrity.damage(path)
 
-    def location(self, key: str) -> Path:
-        return self._layout.repository_dir(key)
-
     def origin_url(self, key: str) -> str | None:
         git = self._layout.repository_dir(key) / ".git"
         if not git.is_dir():
