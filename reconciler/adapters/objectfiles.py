@@ -55,7 +55,7 @@ from reconciler.adapters.objectsize import (
     too_large,
 )
 from reconciler.base.errors import LpamError
-from reconciler.engine.execution.ports import READ_LIMIT, RemoteRefs
+from reconciler.engine.execution.ports import READ_LIMIT, Fetched, RemoteRefs
 from schemas.names import is_hex_commit
 
 if TYPE_CHECKING:
@@ -186,11 +186,11 @@ class ObjectFiles:
     def ls_remote(self, url: str) -> RemoteRefs:
         return self._git().ls_remote(url)
 
-    def fetch(self, key: str, url: str) -> None:
-        self._git().fetch(key, url)
+    def fetch(self, key: str, url: str, *, want: str | None = None) -> Fetched:
+        return self._git().fetch(key, url, want=want)
 
-    def fetch_objects(self, key: str, url: str) -> None:
-        self._git().fetch_objects(key, url)
+    def fetch_objects(self, key: str, url: str, *, want: str | None = None) -> Fetched:
+        return self._git().fetch_objects(key, url, want=want)
 
     def renew(self, key: str, url: str) -> Path | None:
         return self._git().renew(key, url)
