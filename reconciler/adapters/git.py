@@ -49,7 +49,7 @@ from dulwich.objects import Blob, Commit, ObjectID, SubmoduleEncountered, Tree
 from dulwich.refs import Ref
 from dulwich.repo import Repo
 
-from reconciler.adapters import history, integrity
+from reconciler.adapters import gitfiles, history, integrity
 from reconciler.adapters.objectsize import object_size, too_large
 from reconciler.adapters.remote import RemoteRefs, Transport
 from reconciler.adapters.wire import durable
@@ -97,6 +97,13 @@ class GitStore:
     # -- read-only, no network ---------------------------------------------------------
 
     def head(self, key: str) -> str | None:
+        """The commit HEAD names. A detached HEAD (every checkout lpam made) is read from
+        its file, as git writes it: one repository open fewer per repository and
+        command; anything else is asked of dulwich."""
+        with contextlib.suppress(OSError, UnicodeDecodeError):
+            text = (self._layout.repository_dir(key) / ".git" / "HEAD").read_text("ascii")
+            if len(text) == 41 and text.endswith("\n") and is_hex_commit(text[:40]):
+                return text[:40]
         with self._open(key) as repo:
             if repo is None:
                 return None
@@ -106,6 +113,13 @@ class GitStore:
                 return None
 
     def origin_url(self, key: str) -> str | None:
+        """origin's URL, from a config of the plain shape read without dulwich
+        (adapters/gitfiles.py), else through dulwich."""
+        git = self._layout.repository_dir(key) / ".git"
+        if not git.is_dir():
+            return None
+        with contextlib.suppress(Exception):  # gitfiles.Unsure, a failed read: dulwich's
+            return gitfiles.plain(git).get(("remote", "origin"), {}).get("url")
         with self._open(key) as repo:
             with contextlib.suppress(KeyError):
                 if repo is not None:
