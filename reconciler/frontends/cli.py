@@ -762,9 +762,9 @@ def cmd_pin(args: argparse.Namespace, layout: Layout) -> int:
 
 def _agent_report(event: Event) -> None:
     """The agent's events as log lines (its output goes to the journal)."""
-    from reconciler.workflow.events import Note, Planned, Progress
+    from reconciler.workflow.events import Fetched, Note, Planned, Progress
 
-    if isinstance(event, Note):
+    if isinstance(event, (Note, Fetched)):
         print(f"note: {event.text}", flush=True)
     elif isinstance(event, Progress):
         print(event.text, flush=True)

@@ -218,9 +218,9 @@ class Terminal:
 
     def __call__(self, event: Event) -> None:
         from reconciler.core.planning.render import render
-        from reconciler.workflow.events import Note, Output, Planned, Progress
+        from reconciler.workflow.events import Fetched, Note, Output, Planned, Progress
 
-        if isinstance(event, Note):
+        if isinstance(event, (Note, Fetched)):
             print(self._spell(f"note: {event.text}"), file=sys.stderr)
         elif isinstance(event, Progress):
             print(self._spell(event.text), flush=True)

@@ -23,6 +23,15 @@ class Note:
 
 
 @dataclass(frozen=True)
+class Fetched:
+    """What resolving fetched and what it cost, in one line (the CLI writes it to stderr
+    as `note: …`, the agent to its journal). Not a Note: nothing is amiss, and whoever
+    watches for notes (a fleet's status, a test of a quiet pass) need not read it."""
+
+    text: str
+
+
+@dataclass(frozen=True)
 class Progress:
     """A step starting (`[3/7] build:… …`), a rollback step, a line of the outcome."""
 
@@ -51,6 +60,6 @@ class Phase:
     name: str
 
 
-Event = Union[Note, Progress, Output, Planned, Phase]
+Event = Union[Note, Fetched, Progress, Output, Planned, Phase]
 Report = Callable[[Event], None]
 

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from reconciler import __version__
 from reconciler.base.errors import LockError, LpamError
 from reconciler.workflow.defaults import LOCK_TIMEOUT
-from reconciler.workflow.events import Note, Phase, Report
+from reconciler.workflow.events import Fetched, Note, Phase, Report
 from reconciler.workflow.machine import Machine
 
 if TYPE_CHECKING:
@@ -109,10 +109,10 @@ def prepare(machine: Machine, path: Path, desired: DesiredState, *, fetch: Fetch
                       default_user=libpanda_user(layout), root=layout.root,
                       notice=lambda text: report(Note(text)))
     refuse_shared_claims(path, places, targets)  # every plan and apply passes here
+    report(Phase("resolve"))
     said = fetched_note(targets)
     if said is not None:
-        report(Note(said))
-    report(Phase("resolve"))
+        report(Fetched(said))
     needs = any(a.deps.how for a in targets.apps)  # apt, pip or ROS
     observed = observe(layout, store, targets,
                        machine.services if asks_manager(record) else None,
