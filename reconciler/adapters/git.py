@@ -119,7 +119,7 @@ class GitStore:
         if not git.is_dir():
             return None
         with contextlib.suppress(Exception):  # gitfiles.Unsure, a failed read: dulwich's
-            return gitfiles.plain(git).get(("remote", "origin"), {}).get("url")
+            return gitfiles.origin_url(git)
         with self._open(key) as repo:
             with contextlib.suppress(KeyError):
                 if repo is not None:

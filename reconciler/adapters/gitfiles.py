@@ -108,6 +108,11 @@ def plain(git: Path) -> Config:
     return config(git)
 
 
+def origin_url(git: Path) -> str | None:
+    """origin's URL in the config of a plain checkout (`plain`), None without one."""
+    return plain(git).get(("remote", "origin"), {}).get("url")
+
+
 @dataclass(frozen=True)
 class Refs:
     """A checkout's refs as its files hold them: loose (HEAD included) and packed."""

@@ -129,7 +129,7 @@ class ObjectFiles:
         if not git.is_dir():
             return None
         try:
-            return gitfiles.plain(git).get(("remote", "origin"), {}).get("url")
+            return gitfiles.origin_url(git)
         except Exception:  # gitfiles.Unsure, or a read that failed: GitStore's answer
             return self._git().origin_url(key)
 
@@ -208,7 +208,7 @@ class ObjectFiles:
         return self._git().export_folder(key, commit, folder, dest)
 
     def _local_refs(self, key: str, git: Path) -> RemoteRefs:
-        url = gitfiles.plain(git).get(("remote", "origin"), {}).get("url")
+        url = gitfiles.origin_url(git)
         found = gitfiles.refs(git)
         refs = {"refs/heads/" + name: sha
                 for name, sha in sorted(found.under("refs/remotes/origin").items())}

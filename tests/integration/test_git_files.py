@@ -17,19 +17,9 @@ from reconciler.adapters.git import GitStore
 from reconciler.adapters.objectfiles import ObjectFiles
 from reconciler.base.layout import Layout
 from tests.gitserver import GitDaemon, RepoBuilder, git_env, run_git
+from tests.integration.test_object_files import fast_only
 
 KEY = "apps"
-
-
-def fast_only(layout: Layout) -> ObjectFiles:
-    """An ObjectFiles that fails the test where it would ask GitStore."""
-    files = ObjectFiles(layout)
-
-    def asked() -> GitStore:
-        raise AssertionError("asked GitStore")
-
-    files._git = asked  # type: ignore[method-assign]
-    return files
 
 
 def same_answers(files: ObjectFiles, store: GitStore, commits: list[str]) -> None:
