@@ -58,27 +58,28 @@ class OldProtocolRelay:
             thread.start()
 
     def _relay(self, client: socket.socket) -> None:
+        """The request line rewritten, then bytes both ways until each side has closed:
+        a side that finished sending (the client after its request) is half-closed, not
+        the connection (no timeout either: a loaded machine may take long to answer)."""
         with client, socket.create_connection(("127.0.0.1", self.target), timeout=10) as up:
-            client.settimeout(10)
+            up.settimeout(None)
             first = _pkt(client)
             up.sendall(_line(first.replace(b"\0version=2\0", b"\0")))
-            done = threading.Event()
 
             def pipe(src: socket.socket, dst: socket.socket) -> None:
                 with contextlib.suppress(OSError):
-                    while not done.is_set():
+                    while True:
                         data = src.recv(65536)
                         if not data:
                             break
                         dst.sendall(data)
-                done.set()
                 with contextlib.suppress(OSError):
                     dst.shutdown(socket.SHUT_WR)
 
             back = threading.Thread(target=pipe, args=(up, client), daemon=True)
             back.start()
             pipe(client, up)
-            back.join(timeout=10)
+            back.join(timeout=60)
 
 
 def _pkt(sock: socket.socket) -> bytes:
