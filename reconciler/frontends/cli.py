@@ -116,21 +116,22 @@ defaults: written after the command, an option wins; before it, it is no longer 
 New = Callable[[str, str], argparse.ArgumentParser]
 
 
-def _parser() -> argparse.ArgumentParser:
+def parser() -> argparse.ArgumentParser:
+    """lpam's arguments; reconciler/frontends/helptext.py keeps its `--help` as text."""
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument(
         "--root", default=argparse.SUPPRESS,
         help="put every path lpam touches under ROOT (default: $LPAM_ROOT or /)",
     )
-    parser = argparse.ArgumentParser(
+    lpam = argparse.ArgumentParser(
         prog="lpam", parents=[common],
         description="Make this vehicle's apps match a declared desired state.",
     )
-    parser.add_argument("--version", action="version", version=f"lpam {__version__}")
+    lpam.add_argument("--version", action="version", version=f"lpam {__version__}")
     for name in GLOBAL:
         flags, options = OPTIONS[name]
-        parser.add_argument(*flags, **options)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+        lpam.add_argument(*flags, **options)
+    sub = lpam.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def new(name: str, what: str) -> argparse.ArgumentParser:
         return sub.add_parser(name, parents=[common], help=what)
@@ -138,7 +139,7 @@ def _parser() -> argparse.ArgumentParser:
     for declare in (_plan_apply, _status_operate, _logs_history_rollback, _sync_agent,
                     _gates_install_bundle, _fleet_pin_services, _validate_import):
         declare(new)
-    return parser
+    return lpam
 
 
 def _add(parser: argparse.ArgumentParser, *names: str, **override: Any) -> None:
@@ -330,7 +331,7 @@ def entry() -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    args = parser().parse_args(argv)
     raise_signals_where_lpam_stands()
     keep_writes_private()  # nothing lpam makes is writable by group or others (base/modes.py)
     layout = _layout(args)

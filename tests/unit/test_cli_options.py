@@ -16,7 +16,7 @@ from reconciler.frontends.console import Calling
 
 
 def subcommands() -> dict[str, argparse.ArgumentParser]:
-    parser = cli._parser()
+    parser = cli.parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     return dict(sub.choices)
 
@@ -31,14 +31,14 @@ def test_a_shared_option_is_the_same_in_every_command() -> None:
     assert {dest: len(kinds) for dest, kinds in seen.items()} == {
         "script_timeout": 1, "network_timeout": 1, "services": 1, "keep_generations": 1,
         "force": 1}
-    assert cli._parser().parse_args(["apply"]).keep_generations == KEEP_GENERATIONS
+    assert cli.parser().parse_args(["apply"]).keep_generations == KEEP_GENERATIONS
 
 
 @pytest.mark.parametrize("command", ["plan", "apply", "start", "rollback", "sync", "agent",
                                      "pin"])
 def test_no_lock_timeout_given_leaves_the_use_case_its_default(command: str) -> None:
-    assert cli._parser().parse_args([command]).lock_timeout is None
-    assert cli._parser().parse_args([command, "--lock-timeout", "3"]).lock_timeout == 3.0
+    assert cli.parser().parse_args([command]).lock_timeout is None
+    assert cli.parser().parse_args([command, "--lock-timeout", "3"]).lock_timeout == 3.0
 
 
 def test_pin_passes_the_lock_timeout_through(tmp_path: Path,
@@ -74,7 +74,7 @@ def test_a_global_option_is_read_before_the_command_as_after_it(
     and had it been read, the subcommand's own default would have overwritten it (issue 30,
     item 12). Before the command it is read for every command, as --root is; after it,
     where the command takes it; written in both places, the one after the command wins."""
-    parser = cli._parser()
+    parser = cli.parser()
     before = parser.parse_args(["--root", "/r", *flags, command])
     assert getattr(before, dest) == value and before.root == "/r"
     if any(a.dest == dest for a in subcommands()[command]._actions):
