@@ -10,7 +10,8 @@ after each run; a helper left to exit on its own, as lpam's network forkserver, 
 count, but only apply and sync start that one). The commands take turns in one round-robin
 (a warm-up round, then `--reps` counted ones) and are read as ratios: `--version` and
 `--help` to `python -c pass` (the same interpreter doing nothing: the floor), `status` to
-`vcs status` of the same repositories.
+`vcs status` of the same repositories. Two rows are floors, not commands: importing
+pydantic's BaseModel, and the models `status` reads and renders (schemas/report.py).
 `lpam status` and a no-op `lpam plan` (with `--detailed-exitcode`: any change stops the run)
 read a root where a desired state pinning `--repos` repositories was applied; `vcs status`
 reads a `vcs import` of the same `.repos` set. Both are set up untimed (bench/repos.py),
@@ -87,6 +88,12 @@ def commands(root: Path, desired: Path, checkout: Path, vcs: str) -> list[Comman
         Command("lpam status", [LPAM, *status], status),
         Command("lpam plan (no-op)", [LPAM, *plan], plan),
         Command(VCS_STATUS, [vcs, "status", str(checkout)]),
+        # floors: what `status` cannot do without, since its record and report are
+        # pydantic models (the design's choice of library)
+        Command("python: from pydantic import BaseModel",
+                [sys.executable, "-c", "from pydantic import BaseModel"]),
+        Command("python: import the report's models", [sys.executable, "-c",
+                                                       "import schemas.report"]),
     ]
 
 

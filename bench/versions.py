@@ -6,17 +6,19 @@
 What a refactoring costs at run time, measured rather than assumed: a no-op `lpam plan`,
 `lpam status`, and a saved plan of a cold apply (one checkout step per repository) written
 (`plan --out`) and read back (`validate`, which loads it as `apply PLANFILE` does before the
-lock). Each checkout runs its own code (`python -m reconciler` from its folder) with the
-same libraries; each writes and reads its own plan format. One fixture serves both (the
-repositories of bench/repos.py pinned to commits on a loopback git daemon, applied once by
-the other, earlier checkout: a newer lpam reads its record through the migration). The
-checkouts take turns within each round, every run a fresh process, and
+lock), and that cold apply itself (fetches from the daemon and checkouts, into a fresh root
+each round, removed after). Each checkout runs its own code (`python -m reconciler` from
+its folder) with the same libraries; each writes and reads its own plan format. One fixture
+serves both (the repositories of bench/repos.py pinned to commits on a loopback git daemon,
+applied once by the other, earlier checkout: a newer lpam reads its record through the
+migration). The checkouts take turns within each round, every run a fresh process, and
 each figure is a ratio to this checkout's in the same rounds: these machines are noisy.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -53,11 +55,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--other", type=Path, required=True, help="another lpam checkout")
     parser.add_argument("--reps", type=int, default=9, help="counted rounds (default 9)")
     parser.add_argument("--repos", type=int, default=20, help="repositories (default 20)")
+    parser.add_argument("--commits", type=int, default=10, help="commits each (default 10)")
     args = parser.parse_args(argv)
     if not (args.other / "reconciler" / "__main__.py").is_file():
         parser.error(f"{args.other} is no lpam checkout")
-    if not 1 <= args.reps <= 100 or not 1 <= args.repos <= 200:
-        parser.error("keep --reps <= 100 and --repos <= 200")
+    if not 1 <= args.reps <= 100 or not 1 <= args.repos <= 200 or not 1 <= args.commits <= 1000:
+        parser.error("keep --reps <= 100, --repos <= 200 and --commits <= 1000")
     folders = [TOP, args.other.resolve()]
     with tempfile.TemporaryDirectory(prefix="lpam-bench-versions-") as name:
         tmp = Path(name)
@@ -69,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         with CountingDaemon(tmp / "served", home=tmp / "home", log=tmp / "daemon.log") as daemon:
             print(f"building {args.repos} repositories ...", file=sys.stderr)
             repos = build_repos(daemon, tmp / "work", tmp / "home", count=args.repos,
-                                commits=10)
+                                commits=args.commits)
             desired = tmp / "desired.yaml"
             desired.write_text(desired_state(repos, pinned=True))
             root, empty = tmp / "root", tmp / "empty"
@@ -88,7 +91,7 @@ def _rounds(folders: list[Path], desired: Path, root: Path, empty: Path, tmp: Pa
     for rnd in range(reps + 1):
         print(f"  round {rnd}/{reps}{' (warm-up)' if rnd == 0 else ''}", file=sys.stderr)
         for number, folder in enumerate(folders):
-            saved = tmp / f"cold-{number}.json"
+            saved, fresh = tmp / f"cold-{number}.json", tmp / f"fresh-{number}"
             commands = {
                 "lpam plan (no-op)": ["plan", "-f", str(desired), "--root", str(root),
                                       "--detailed-exitcode"],
@@ -96,18 +99,21 @@ def _rounds(folders: list[Path], desired: Path, root: Path, empty: Path, tmp: Pa
                 "lpam plan --out (cold)": ["plan", "-f", str(desired), "--root", str(empty),
                                            "--out", str(saved)],
                 "read the saved plan": ["validate", "--kind", "plan", str(saved)],
+                "lpam apply (cold)": ["apply", "-f", str(desired), "--root", str(fresh),
+                                      "--yes"],
             }
             for label, command in commands.items():
                 took = run_in(folder, command, env)
                 if rnd:
                     times.setdefault((label, folder), []).append(took)
+            shutil.rmtree(fresh)
     return times
 
 
 def _report(folders: list[Path], times: dict[tuple[str, Path], list[float]],
             args: argparse.Namespace) -> None:
     print(f"## Machine\n\n{machine()}\n\n{args.reps} counted rounds after one warm-up; "
-          f"{args.repos} repositories pinned to commits; Python "
+          f"{args.repos} repositories of {args.commits} commits pinned to commits; Python "
           f"{sys.version.split()[0]}.\n")
     print_ratios([commit_of(f) for f in folders], list(folders),
                  list(dict.fromkeys(label for label, _ in times)), times)
