@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import sys
 
+# Imported inside functions: --version and --help are answered before the CLI is
+# imported, and a Ctrl-C while importing it ends as exit 130 (start-up; see the docstring).
+
 
 def main() -> int:
     if sys.argv[1:] == ["--version"]:

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import re
 
+# Imported inside functions: packaging (~50 modules) loads only when a pip requirement is checked; a
+# plan without pip requirements does not pay for it (start-up).
+
 # Debian Policy 5.6.1: lower case letters, digits, '+', '-', '.'; at least two characters,
 # starting with a letter or digit. An architecture qualifier (`:arm64`) is allowed.
 _DEBIAN = re.compile(r"^[a-z0-9][a-z0-9+.-]{1,99}(:[a-z0-9][a-z0-9-]{0,31})?$")

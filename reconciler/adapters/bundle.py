@@ -26,6 +26,9 @@ if TYPE_CHECKING:
     from dulwich.object_store import BaseObjectStore
     from dulwich.repo import Repo
 
+# Imported inside functions: dulwich loads only when a bundle is written or read (start-up: the
+# workflow that imports this module must stay dulwich-free; tests/integration/test_imports.py).
+
 MANIFEST = b"refs/lpam/manifest"
 FORMAT = 1
 REMAKE = "make one with `lpam bundle create`"

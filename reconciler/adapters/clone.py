@@ -13,6 +13,9 @@ from pathlib import Path
 
 from reconciler.base.errors import ConfigError
 
+# Imported inside functions: dulwich loads only when `lpam fleet` reads a published clone
+# (start-up: importing this module stays dulwich-free).
+
 
 @dataclass(frozen=True)
 class Published:

@@ -34,6 +34,9 @@ if TYPE_CHECKING:
     from multiprocessing.context import ForkServerContext
     from multiprocessing.process import BaseProcess
 
+# Imported inside functions: multiprocessing loads only when the forkserver is first needed, or
+# in warm()'s thread to overlap lpam's imports (start-up); wire and json are cheap by then.
+
 _GRACE = 1.0  # seconds between SIGTERM and SIGKILL: time for the child to delete temp files
 _POLL = 0.2  # how often a wait checks that the child is still alive
 _lock = threading.Lock()

@@ -37,6 +37,9 @@ if TYPE_CHECKING:
     from reconciler.adapters.locks import UpdateLocks
     from reconciler.core.vehicle.signal import SignalDef
 
+# Imported inside functions: the vehicle source (python-can: optional, on a car) loads only when
+# a gate is read; locks and signal decoding are cheap (1-2 modules) and follow that use.
+
 LISTEN_SLICE = 1.0  # seconds of frames read between two decisions while waiting
 FIRST_LISTEN = 3.0  # a live bus is heard this long (at most stale_seconds) to know the speed
 PROGRESS_EVERY = 10.0

@@ -67,6 +67,9 @@ from reconciler.base.text import escaped
 from reconciler.engine.execution.ports import READ_LIMIT, Fetched, ambiguous
 from schemas.names import is_hex_commit, redact
 
+# Imported inside functions: dulwich.porcelain (~50 modules beyond the dulwich loaded above)
+# loads only for a checkout or a local-edits check; dulwich.index is loaded above (no gain).
+
 BLOBS_LIMIT = 10_000  # files in one app folder; more is not an app folder to compare
 
 # dulwich.porcelain is imported where it is used, as dulwich.client is in adapters.remote: a

@@ -41,6 +41,9 @@ from pathlib import Path
 from reconciler.adapters import gitfiles
 from reconciler.base.atomic import write_atomic
 
+# Imported inside functions: dulwich loads only where its parser is needed; `lpam status` and the
+# shim's reading flags check copies without dulwich (tests/integration/test_imports.py).
+
 _CHUNK = 1024 * 1024
 _IDX_MAGIC = b"\377tOc"
 _SHA = 20

@@ -62,6 +62,9 @@ if TYPE_CHECKING:
     from reconciler.adapters.git import GitStore
     from reconciler.base.layout import Layout
 
+# Imported inside functions: GitStore (dulwich) is the fallback only; status and the shim read
+# committed files without dulwich (start-up; tests/integration/test_imports.py).
+
 _SHA = 20
 _IDX_MAGIC = b"\377tOc"
 _FANOUT = 8  # where the fan-out table of a version-2 index starts

@@ -30,6 +30,9 @@ if TYPE_CHECKING:  # adapters/objectfiles.py reads sizes with this module, witho
     from dulwich.object_store import BaseObjectStore
     from dulwich.objects import ObjectID
 
+# Imported inside functions: dulwich's object store loads only when a size is not read from git's
+# own files; objectfiles imports this module for status without dulwich (start-up).
+
 _OFS_DELTA, _REF_DELTA = 6, 7
 _HEAD_BYTES = 64  # more than any pack entry header, delta base offset or hash included
 _INFLATED_HEAD = 32  # more than a loose header or the two sizes opening a delta

@@ -30,6 +30,9 @@ from reconciler.engine.execution.ports import Fetched
 from reconciler.engine.execution.ports import RemoteRefs as RemoteRefs
 from schemas.names import redact
 
+# Imported inside functions: the deadline runner loads only when a network operation runs; it is
+# light (no heavy library) and this module already loads dulwich, so the gain is small.
+
 _HEADS = "refs/heads/"
 _TAGS = "refs/tags/"
 _PEELED = "^{}"

@@ -19,6 +19,9 @@ from reconciler.base.errors import ConfigError
 from reconciler.base.reading import read_bounded
 from reconciler.base.text import shorten
 
+# Imported inside functions: ruamel.yaml loads only when YAML is read or written (start-up: `lpam
+# status` of an empty root loads no ruamel; tests/integration/test_imports.py).
+
 MAX_DOCUMENT_BYTES = 1024 * 1024
 MAX_DEPTH = 64
 """Nesting deeper than this is refused as the parser meets it: lpam's documents are a few

@@ -13,6 +13,9 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
+# Imported inside functions: ruamel.yaml loads only when a document is edited (start-up:
+# workflow/editing.py and workflow/pin.py import this module and stay ruamel-free).
+
 
 def sequence_offset(text: str) -> int:
     """How far the file indents a list's dash under its key (`  - url:` is 2, `- url:` 0)."""

@@ -24,6 +24,9 @@ from schemas.desired import DesiredState
 from schemas.kinds import DocumentKind
 from schemas.plan import Plan
 
+# Imported inside functions: the migrations (no heavy library, ~18 modules) load only when a
+# document is upgraded; schemas.desired/plan and base.loading are loaded at top (no gain).
+
 
 class _Places(Protocol):
     """What places a fault: a parsed document, or a version-1 one seen as the current."""

@@ -68,6 +68,9 @@ from schemas.kinds import DocumentKind
 from schemas.override import LocalOverride
 from schemas.record import HistoryEntry, history_sets
 
+# Imported inside functions: the migrations (no heavy library, ~18 modules) load only when a
+# published status file is read (`lpam fleet`); a small start-up gain.
+
 STATUS_FILE = "status.json"
 """The file a car publishes on `status/<vehicle>`."""
 

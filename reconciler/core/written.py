@@ -26,6 +26,9 @@ from schemas.kinds import DocumentKind
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
+# Imported inside functions: pydantic and the migrations load only when JSON is parsed into a
+# model; its importers (documents, validation, state) load pydantic anyway: little gain.
+
 
 M = TypeVar("M", bound="BaseModel")
 

@@ -45,6 +45,9 @@ if TYPE_CHECKING:  # imported lazily at run time: `lpam --version` must stay fas
     from reconciler.workflow.machine import Machine
     from schemas.record import HistoryEntry
 
+# Imported inside functions: each command loads only its own use case (start-up;
+# tests/integration/test_imports.py holds it).
+
 EXIT_OK, EXIT_ERROR, EXIT_CHANGES = 0, 1, 2
 VALIDATE_KINDS = ("desired-state", "catalog", "repository", "agent", "plan")
 """The values of reconciler.workflow.validation.Kind, spelled out: the parser is built before any

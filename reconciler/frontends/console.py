@@ -32,6 +32,9 @@ from reconciler.workflow.machine import now
 if TYPE_CHECKING:
     from reconciler.workflow.events import Event
 
+# Imported inside functions: the plan renderer (pydantic) loads only when a plan is printed
+# (start-up); the others (events, reading, time) are cheap and follow that use.
+
 T = TypeVar("T")
 
 EXIT_BUG, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 130, 143  # 128 + SIGINT, 128 + SIGTERM

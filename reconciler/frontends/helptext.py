@@ -18,6 +18,9 @@ from __future__ import annotations
 import os
 import sys
 
+# Imported inside functions: the CLI is what `lpam --help` must not import (start-up;
+# tests/unit/test_help_fast.py).
+
 WIDTH = 80
 FILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "help.txt")
 

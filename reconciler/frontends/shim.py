@@ -41,6 +41,9 @@ if TYPE_CHECKING:
     from reconciler.workflow.machine import Machine
     from schemas.report import CatalogRow, StatusReport
 
+# Imported inside functions: each flag loads only its own use case; -h and the reading flags load no
+# heavy library they do not need (start-up; tests/integration/test_imports.py).
+
 PROG = "libpanda-app-manager"
 FLAGS = "htkdscupl"
 VALUED = "igbr"

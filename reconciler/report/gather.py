@@ -41,6 +41,9 @@ if TYPE_CHECKING:
     from schemas.override import LocalOverride
     from schemas.record import RepositoryRecord, StateRecord
 
+# Imported inside functions: status reads committed files without dulwich (GitStore and the
+# takeover check only when needed; test_imports.py); pwd/grp/lock readers are cheap.
+
 SHOWN_FILES = ("description.txt", "service")  # the scripts are not shown, so not read
 
 

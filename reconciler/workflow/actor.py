@@ -22,6 +22,9 @@ from collections.abc import Callable, Mapping
 
 from schemas.record import Actor
 
+# Imported inside functions: pwd (stdlib, Unix only, no measurable cost) only when an account name
+# is needed; no start-up reason.
+
 
 def _login() -> str:
     return os.getlogin()

@@ -28,6 +28,9 @@ if TYPE_CHECKING:
     from schemas.plan import Plan
     from schemas.record import Actor, AppRecord, DesiredRef, StateRecord
 
+# Imported inside functions: the engine (planning, execution, records: pydantic) loads only
+# when an apply runs; editing, agent, sync and BLE answers import this module (start-up).
+
 
 @dataclass(frozen=True)
 class ApplyOptions:

@@ -23,6 +23,9 @@ from schemas.bluetooth import BleService, Writes
 if TYPE_CHECKING:
     from reconciler.adapters.bluez.pairing import Phone
 
+# Imported inside functions: BlueZ pairing (dbus_fast: an optional dependency present on a car)
+# loads only for `lpam ble pair/phones/forget` (start-up).
+
 
 @contextlib.contextmanager
 def announced(layout: Layout, *, writes: Writes, adapter: str, since: str) -> Iterator[None]:

@@ -27,6 +27,9 @@ from reconciler.workflow.source import DEFAULT_FILE, SOURCE_KEY, VEHICLE_DIR, de
 from schemas.agent import AgentConfig
 from schemas.names import is_hex_commit
 
+# Imported inside functions: the bundle adapter (dulwich), the lock and target resolution load
+# only when a bundle is made or unpacked; sync imports this module at top (start-up).
+
 
 @dataclass(frozen=True)
 class Entry:

@@ -22,6 +22,9 @@ from reconciler.base.errors import ConfigError
 from reconciler.base.text import columns, printable
 from schemas.fleet import CarStatus
 
+# Imported inside functions: the clone reader (dulwich when used) and the status-file reader load
+# only when `lpam fleet` reads, its only caller; no real start-up gain (few modules).
+
 PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
 
 

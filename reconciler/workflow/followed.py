@@ -23,6 +23,9 @@ if TYPE_CHECKING:
     from reconciler.core.documents import DesiredDocument
     from schemas.desired import DesiredState
 
+# Imported inside functions: the document readers and state record (~13 modules) load only when
+# the applied desired state or agent status is read; the stdlib/base ones are cheap.
+
 
 def vehicle_id(machine: Machine, config: AgentConfig) -> str:
     """`vehicle:`, else the content of `vehicle_file:` (under --root), else the hostname."""

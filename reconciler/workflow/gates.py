@@ -21,6 +21,9 @@ if TYPE_CHECKING:
     from reconciler.engine.execution.ports import Gate, Listener
     from reconciler.workflow.followed import Followed
 
+# Imported inside functions: the document readers and followed (pydantic) load only when gates
+# are checked; operate imports this module at top (a small start-up gain).
+
 
 @dataclass(frozen=True)
 class Governing:

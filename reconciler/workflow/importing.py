@@ -8,6 +8,9 @@ from pathlib import Path
 from reconciler.base.errors import ConfigError
 from reconciler.base.layout import Layout
 
+# Imported inside functions: the legacy importer (~42 modules) loads only when `lpam import` runs,
+# its only caller (the CLI loads this module for that command); no real start-up gain.
+
 
 def import_legacy(layout: Layout, etc_dir: Path | None, *, output: Path | None) -> str:
     """The desired state of LPAM's folder `etc_dir` (default: the root's), written to

@@ -32,6 +32,9 @@ if TYPE_CHECKING:
     from schemas.record import RepositoryRecord
     from schemas.report import StatusReport
 
+# Imported inside functions: the store readers and schemas (pydantic) load only when a report is
+# made; the shim and BLE import this module lazily already (small gain).
+
 
 def report(machine: Machine) -> StatusReport:
     """The status report over the repositories of the default desired state, offline:

@@ -25,6 +25,9 @@ from reconciler.workflow.machine import Machine
 if TYPE_CHECKING:
     from schemas.record import AppRecord
 
+# Imported inside functions: the state record and applying load only when `lpam logs` runs, the only
+# caller (the CLI loads this module for it); no real start-up gain.
+
 LOG_FILES = 50  # run logs looked at, newest first: enough for weeks of applies
 READ_LIMIT = 1024 * 1024  # bytes of one run log
 FOLLOW_LINES = 200  # asked of the manager each second while following

@@ -29,6 +29,9 @@ if TYPE_CHECKING:
     from schemas.desired import DesiredState
     from schemas.record import Actor, DesiredRef
 
+# Imported inside functions: each adapter (dulwich, supervisor, packaging, pydantic...) loads
+# only when its port is used; every command imports this module (start-up; test_imports.py).
+
 
 def now() -> datetime:
     return datetime.now(timezone.utc)

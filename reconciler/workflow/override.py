@@ -28,6 +28,9 @@ if TYPE_CHECKING:
     from reconciler.workflow.followed import Followed
     from schemas.override import LocalOverride
 
+# Imported inside functions: the record readers and schemas (pydantic) load only when an override is
+# read or begun; editing and inventory import this module (start-up of the shim).
+
 
 @dataclass(frozen=True)
 class Editable:

@@ -10,6 +10,9 @@ from reconciler.base.errors import LpamError
 from reconciler.base.layout import Layout
 from reconciler.workflow.events import Report
 
+# Imported inside functions: the bundle workflow, machine and documents load only when `lpam bundle`
+# runs, the only caller (the CLI loads this module for it); no real start-up gain.
+
 
 def make_bundle(layout: Layout, out: Path, *, url: str | None, branch: str | None,
                 network_timeout: float, report: Report) -> int:

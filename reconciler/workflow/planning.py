@@ -27,6 +27,9 @@ if TYPE_CHECKING:
     from schemas.plan import FetchedRepository, Plan
     from schemas.record import StateRecord
 
+# Imported inside functions: the planner and engine (pydantic; networkx when needed) load only
+# when a plan is made; applying imports this module at top (start-up of its importers).
+
 
 def plan(machine: Machine, path: Path, desired: DesiredState, *, report: Report,
          offline: bool = False, out: Path | None = None, lock_timeout: float | None = None,

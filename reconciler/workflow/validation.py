@@ -29,6 +29,9 @@ from reconciler.core.written import json_position
 from schemas.catalog import CATALOG_FILE, Catalog
 from schemas.enums import StrEnum
 
+# Imported inside functions: the schemas are already loaded at top (no gain); the migrations and
+# plan checks (~15-18 modules) load only for the kind being validated.
+
 
 class Kind(StrEnum):
     """The kinds of document `--kind` names (the CLI spells out the same values)."""

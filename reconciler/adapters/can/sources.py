@@ -33,6 +33,9 @@ if TYPE_CHECKING:
 
     from reconciler.adapters.can.csvlog import Follower, LineFormat
 
+# Imported inside functions: python-can (csvlog pulls it too) loads only when a bus or log is
+# opened: an optional dependency present on a car, and ~165 modules of start-up.
+
 OPEN_TIMEOUT = 5.0   # seconds a bus may take to connect and answer its handshake
 RECV_SLICE = 0.25    # longest single wait in bus.recv: deadlines are kept, hangups seen
 _SOURCE_HINT = "is the recording app running? set vehicle.source (bus, follow or log)"

@@ -40,6 +40,9 @@ from reconciler.base.flock import wait_exclusive
 from reconciler.base.layout import Layout
 from reconciler.base.process import alive
 
+# Imported inside functions: `supervisor` only to find where it is installed when
+# no supervisord script sits beside Python; already loaded at top by supervisor.xmlrpc.
+
 CALL_TIMEOUT = 10.0  # an answer to a question; starting and stopping get their own bound
 LAUNCH_TIMEOUT = 10.0  # from launching supervisord to its first answer
 LOCK_TIMEOUT = 30.0

@@ -59,6 +59,9 @@ from schemas.service import DEFAULT_HEALTH_TIMEOUT, DEFAULT_SETTLE_SECONDS, Heal
 if TYPE_CHECKING:
     from reconciler.engine.execution.ports import Fetched, Resolving
 
+# Imported inside functions: pwd (stdlib, Unix only, no measurable cost) only where an app's user
+# is checked; no start-up reason.
+
 FETCH_WORKERS = 4
 ROS_KEY_PREFIX = "@ros/"  # store keys of ROS repositories: never an app repository's key
 _In = TypeVar("_In")

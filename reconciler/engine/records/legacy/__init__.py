@@ -58,6 +58,9 @@ from reconciler.engine.records.legacy.notes import (
     wrap_note,
 )
 
+# Imported inside functions: pydantic, the v1-to-v2 migration, the desired-state schema and
+# ruamel load only when `lpam import` runs; the parsers here need none (start-up).
+
 __all__ = [  # the package's own flow, and the parsers tested on text alone
     "Imported",
     "branch_of_head",
