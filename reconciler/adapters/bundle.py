@@ -26,8 +26,8 @@ if TYPE_CHECKING:
     from dulwich.object_store import BaseObjectStore
     from dulwich.repo import Repo
 
-# Imported inside functions: dulwich loads only when a bundle is written or read (start-up: the
-# workflow that imports this module must stay dulwich-free; tests/integration/test_imports.py).
+# Imported inside functions: dulwich loads only when a bundle is written or read; this module
+# is itself imported only for that (workflow/bundle.py, lazily), so no real start-up gain.
 
 MANIFEST = b"refs/lpam/manifest"
 FORMAT = 1
