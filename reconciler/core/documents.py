@@ -16,16 +16,16 @@ from typing import Any, Protocol
 from pydantic import BaseModel, ValidationError
 
 from reconciler.base.errors import ConfigError
-from reconciler.base.loading import Document, load
+from reconciler.base.loading import Document, load, read_text
 from reconciler.core.written import JsonPositions, parse_json
 from schemas.agent import AgentConfig
 from schemas.catalog import Catalog, CatalogFault, RawCatalog, normalise
-from schemas.desired import DesiredState
+from schemas.desired import DesiredState, duplicate_app
 from schemas.kinds import DocumentKind
-from schemas.plan import Plan
+from schemas.plan import Plan, fingerprint
 
 # Imported inside functions: the migrations (no heavy library, ~18 modules) load only when a
-# document is upgraded; schemas.desired/plan and base.loading are loaded at top (no gain).
+# document is upgraded.
 
 
 class _Places(Protocol):
@@ -161,8 +161,6 @@ class _V1Places:
 def _check_duplicate_apps(doc: _Places, data: dict[str, Any]) -> None:
     """An app named twice, refused at its second entry (the model refuses it too, but
     without a place)."""
-    from schemas.desired import duplicate_app
-
     apps = data.get("apps")
     seen: dict[str, int] = {}
     for index, item in enumerate(apps if isinstance(apps, list) else []):
@@ -237,9 +235,6 @@ def load_plan(path: Path) -> Plan:
     mistyped field, or a plan edited after it was sealed is refused here, at its line
     and column, not when the step runs. (A version-1 plan's seal is checked on its
     version-1 body by its migration, migrations/plan_v1_to_v2.py.)"""
-    from reconciler.base.loading import read_text
-    from schemas.plan import fingerprint
-
     text = read_text(path)
     hint = "pass a file written by `lpam plan --out FILE`, or use -f for a desired state"
     plan = parse_json(DocumentKind.PLAN, text, path, Plan, version_key="format_version", hint=hint)

@@ -18,12 +18,10 @@ one. What BlueZ refuses before lpam sees it (a write from an unbonded phone to a
 from __future__ import annotations
 
 import os
+import pwd
 from collections.abc import Callable, Mapping
 
 from schemas.record import Actor
-
-# Imported inside functions: pwd (stdlib, Unix only, no measurable cost) only when an account name
-# is needed; no start-up reason.
 
 
 def _login() -> str:
@@ -31,8 +29,6 @@ def _login() -> str:
 
 
 def _account() -> str:
-    import pwd
-
     return pwd.getpwuid(os.getuid()).pw_name
 
 

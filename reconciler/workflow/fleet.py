@@ -18,12 +18,11 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from reconciler.adapters import clone
 from reconciler.base.errors import ConfigError
 from reconciler.base.text import columns, printable
+from reconciler.core.publication import STATUS_FILE, read_status_file
 from schemas.fleet import CarStatus
-
-# Imported inside functions: the clone reader (dulwich when used) and the status-file reader load
-# only when `lpam fleet` reads, its only caller; no real start-up gain (few modules).
 
 PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
 
@@ -46,10 +45,7 @@ class Vehicle:
 
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
     """(the followed branch's tip, one row per vehicle with a status branch)."""
-    from reconciler.adapters.clone import published
-    from reconciler.core.publication import STATUS_FILE, read_status_file
-
-    tip, files = published(repo_path, branch=branch, prefixes=PREFIXES,
+    tip, files = clone.published(repo_path, branch=branch, prefixes=PREFIXES,
                            file=STATUS_FILE.encode())
     seen: dict[str, Vehicle] = {}
     for found in files:  # the first branch of a vehicle with a status in JSON counts

@@ -6,10 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from reconciler.base.layout import Layout
-from schemas.record import HistoryEntry
-
-# Imported inside functions: holds and the state record add ~9-15 modules, only when `lpam history`
-# runs, the only caller; no real start-up gain.
+from reconciler.core.planning.holds import same_set
+from reconciler.engine.records.state import read_record
+from schemas.record import HistoryEntry, history_sets
 
 
 @dataclass(frozen=True)
@@ -25,10 +24,6 @@ class Made:
 
 def history(layout: Layout) -> list[Made]:
     """Every generation the record remembers making current, oldest first."""
-    from reconciler.core.planning.holds import same_set
-    from reconciler.engine.records.state import read_record
-    from schemas.record import history_sets
-
     record = read_record(layout)
     made = []
     for number, entries in enumerate(history_sets(record.history)):

@@ -5,22 +5,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from reconciler.base.atomic import write_atomic
 from reconciler.base.errors import ConfigError
 from reconciler.base.layout import Layout
-
-# Imported inside functions: the legacy importer (~42 modules) loads only when `lpam import` runs,
-# its only caller (the CLI loads this module for that command); no real start-up gain.
+from reconciler.engine.records.legacy import import_lpam
 
 
 def import_legacy(layout: Layout, etc_dir: Path | None, *, output: Path | None) -> str:
     """The desired state of LPAM's folder `etc_dir` (default: the root's), written to
     `output` when given (refused if it exists); returns its text."""
-    from reconciler.engine.records.legacy import import_lpam
-
     text = import_lpam(etc_dir if etc_dir is not None else layout.libpanda)
     if output is None:
         return text
-    from reconciler.base.atomic import write_atomic
 
     if output.exists():
         raise ConfigError("already exists; lpam will not overwrite it", path=output,

@@ -20,13 +20,12 @@ from typing import TYPE_CHECKING
 
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import Layout
+from reconciler.engine.records.state import read_record
+from reconciler.workflow.applying import installed_apps
 from reconciler.workflow.machine import Machine
 
 if TYPE_CHECKING:
     from schemas.record import AppRecord
-
-# Imported inside functions: the state record and applying load only when `lpam logs` runs, the only
-# caller (the CLI loads this module for it); no real start-up gain.
 
 LOG_FILES = 50  # run logs looked at, newest first: enough for weeks of applies
 READ_LIMIT = 1024 * 1024  # bytes of one run log
@@ -53,9 +52,6 @@ def app_logs(machine: Machine, lines: int, app: str | None = None) -> Shown:
     line prefixed with `APP | ` as `docker compose logs` does, which is what a user who
     typed no name expects; notes name the app too. An unknown name is refused, naming
     the installed apps."""
-    from reconciler.engine.records.state import read_record
-    from reconciler.workflow.applying import installed_apps
-
     chosen = installed_apps(read_record(machine.layout), app, "there is no output to show")
     if len(chosen) == 1:
         return logs_of(machine, chosen[0], lines)

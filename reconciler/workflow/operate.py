@@ -20,7 +20,8 @@ from pathlib import Path
 from reconciler import __version__
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import KEEP_GENERATIONS
-from reconciler.core.planning.holds import fingerprint, release_command
+from reconciler.core.documents import load_desired
+from reconciler.core.planning.holds import fingerprint, release_command, same_set
 from reconciler.core.planning.model import GenerationKey
 from reconciler.core.planning.modes import operator_plan, rollback_plan
 from reconciler.engine.execution.context import Context
@@ -34,10 +35,7 @@ from reconciler.workflow.machine import Machine
 from schemas.desired import DesiredState
 from schemas.operator import OperatorAction
 from schemas.plan import StartStep, Step
-from schemas.record import AppRecord, HistoryEntry, Hold, StateRecord
-
-# Imported inside functions: documents, holds and the record schema add 0-4 modules once this module
-# is loaded; no start-up gain.
+from schemas.record import AppRecord, HistoryEntry, Hold, StateRecord, history_sets
 
 ProgressLine = Callable[[str], None]
 
@@ -68,8 +66,6 @@ def roll_back(machine: Machine, *, file: Path | None, force: bool, options: Appl
     """`lpam rollback`: under the apply lock, the previous good set of apps is found and
     `confirm`ed, then made current (see `rollback`); None when it was declined. It holds
     against `file` (else the default file) when no apply recorded what it applied."""
-    from reconciler.core.documents import load_desired
-
     path = file if file is not None else machine.layout.desired_state
     desired = load_desired(path) if path.exists() else None
     gate = governing(machine, file, force=force).gate
@@ -171,9 +167,6 @@ def gates_passed(ctx: Context, progress: ProgressLine) -> Iterator[None]:
 def previous_good(ctx: Context) -> list[HistoryEntry]:
     """The last good set of apps (the history's sets: schemas/record.py `history_sets`)
     other than the one installed, every generation of it still on disk."""
-    from reconciler.core.planning.holds import same_set
-    from schemas.record import history_sets
-
     present = generations.present(ctx.layout)
     for entries in reversed(history_sets(ctx.record.history)):
         if entries[0].result != "applied" or same_set(entries, ctx.record.apps):

@@ -8,22 +8,17 @@ from pathlib import Path
 
 from reconciler.base.errors import LpamError
 from reconciler.base.layout import Layout
+from reconciler.core.documents import load_agent
+from reconciler.workflow.bundle import create
 from reconciler.workflow.events import Report
-
-# Imported inside functions: the bundle workflow, machine and documents load only when `lpam bundle`
-# runs, the only caller (the CLI loads this module for it); no real start-up gain.
+from reconciler.workflow.machine import Machine
 
 
 def make_bundle(layout: Layout, out: Path, *, url: str | None, branch: str | None,
                 network_timeout: float, report: Report) -> int:
     """Write the bundle of `url`'s `branch` (default: agent.yaml's under `layout`, else
     the branch main) to `out`; how many repositories it holds."""
-    from reconciler.workflow.bundle import create
-    from reconciler.workflow.machine import Machine
-
     if (url is None or branch is None) and layout.agent_config.exists():
-        from reconciler.core.documents import load_agent
-
         config = load_agent(layout.agent_config)
         url, branch = url or config.source.url, branch or config.source.branch
     if url is None:

@@ -16,7 +16,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from reconciler.base import roundtrip
+from reconciler.base.atomic import write_atomic
 from reconciler.base.errors import ConfigError
+from reconciler.base.loading import load, read_text
+from reconciler.core.documents import desired_from
+from reconciler.engine.execution.lock import apply_lock
+from reconciler.engine.observe.targets import Fetch, resolve
+from reconciler.engine.records.legacy.appdir import libpanda_user
 from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
 from reconciler.workflow.events import Progress, Report
 from reconciler.workflow.machine import Machine
@@ -24,9 +30,6 @@ from schemas.names import is_hex_commit
 
 if TYPE_CHECKING:
     from schemas.desired import DesiredState
-
-# Imported inside functions: the document readers, lock and target resolution (pydantic) load
-# only when `lpam pin` runs, its only caller; no real start-up gain.
 
 
 @dataclass(frozen=True)
@@ -41,10 +44,6 @@ class Pinned:
 def pin(machine: Machine, path: Path, *, report: Report, catalogs: bool = False,
         write: bool = True, lock_timeout: float | None = None) -> list[Pinned]:
     """Pin `path` in place (unless not `write`); the repositories pinned."""
-    from reconciler.base.atomic import write_atomic
-    from reconciler.base.loading import load, read_text
-    from reconciler.core.documents import desired_from
-
     text = read_text(path)
     # refuse a bad file before anything is asked of a remote; the tree validated is the one
     # rewritten (quotes kept), so the text is read and composed once
@@ -91,10 +90,6 @@ def _report_ros(machine: Machine, path: Path, desired: DesiredState, report: Rep
                 lock_timeout: float) -> None:
     """The ROS repositories of the app the file (`desired`, as read before its pins were
     changed: the file is not written yet) names, as they resolve now."""
-    from reconciler.engine.execution.lock import apply_lock
-    from reconciler.engine.observe.targets import Fetch, resolve
-    from reconciler.engine.records.legacy.appdir import libpanda_user
-
     with apply_lock(machine.layout, timeout=lock_timeout):  # a fetch into the store is a write
         targets = resolve(desired, base_dir=path.resolve().parent, store=machine.store(),
                           fetch=Fetch.OBJECTS, default_user=libpanda_user(machine.layout),

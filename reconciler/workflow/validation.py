@@ -26,11 +26,14 @@ from reconciler.base.loading import Document, load, read_text
 from reconciler.base.text import counted
 from reconciler.core.documents import agent_from, catalog_from, desired_from, load_plan
 from reconciler.core.written import json_position
-from schemas.catalog import CATALOG_FILE, Catalog
+from schemas.agent import AgentConfig
+from schemas.catalog import CATALOG_FILE, Catalog, RawCatalog
+from schemas.desired import DesiredState
 from schemas.enums import StrEnum
+from schemas.plan import Plan
 
-# Imported inside functions: the schemas are already loaded at top (no gain); the migrations and
-# plan checks (~15-18 modules) load only for the kind being validated.
+# Imported inside functions: the migrations and the plan's checks (~15-18 modules) load only for
+# the kind being validated.
 
 
 class Kind(StrEnum):
@@ -141,10 +144,6 @@ def _top_keys(kind: Kind) -> frozenset[str]:
     """Every top-level key of `kind` but `version`, which all YAML kinds share."""
     from migrations.desired_state_v0_to_v1 import KEYS as LPAM_KEYS
     from migrations.desired_state_v1_to_v2 import KEYS as V1_KEYS
-    from schemas.agent import AgentConfig
-    from schemas.catalog import RawCatalog
-    from schemas.desired import DesiredState
-    from schemas.plan import Plan
 
     # `apps:` votes for a catalog; a desired state's (version 2) has a `version:` (guess)
     fields = {Kind.DESIRED: {*DesiredState.model_fields, *LPAM_KEYS, *V1_KEYS} - {"apps"},

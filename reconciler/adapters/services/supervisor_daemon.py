@@ -30,6 +30,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import supervisor  # type: ignore[import-untyped]
 from supervisor.xmlrpc import Faults, SupervisorTransport  # type: ignore[import-untyped]
 
 from reconciler.adapters.scripts import passed_through
@@ -39,9 +40,6 @@ from reconciler.base.errors import ServiceError
 from reconciler.base.flock import wait_exclusive
 from reconciler.base.layout import Layout
 from reconciler.base.process import alive
-
-# Imported inside functions: `supervisor` only to find where it is installed when
-# no supervisord script sits beside Python; already loaded at top by supervisor.xmlrpc.
 
 CALL_TIMEOUT = 10.0  # an answer to a question; starting and stopping get their own bound
 LAUNCH_TIMEOUT = 10.0  # from launching supervisord to its first answer
@@ -147,7 +145,6 @@ def _supervisord_argv(conf: str) -> list[str]:
     beside = Path(sys.executable).parent / "supervisord"
     if os.access(beside, os.X_OK):
         return [str(beside), "-c", conf]
-    import supervisor  # type: ignore[import-untyped]
 
     where = os.path.dirname(os.path.dirname(os.path.abspath(supervisor.__file__)))
     code = f"import sys; sys.path.insert(0, {where!r}); " \

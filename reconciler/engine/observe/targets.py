@@ -22,6 +22,7 @@ what the next apply does.
 from __future__ import annotations
 
 import getpass
+import pwd
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -58,9 +59,6 @@ from schemas.service import DEFAULT_HEALTH_TIMEOUT, DEFAULT_SETTLE_SECONDS, Heal
 
 if TYPE_CHECKING:
     from reconciler.engine.execution.ports import Fetched, Resolving
-
-# Imported inside functions: pwd (stdlib, Unix only, no measurable cost) only where an app's user
-# is checked; no start-up reason.
 
 FETCH_WORKERS = 4
 ROS_KEY_PREFIX = "@ros/"  # store keys of ROS repositories: never an app repository's key
@@ -376,8 +374,6 @@ def _deps(desired: DesiredState, entry: CatalogApp, store: Resolving, fetch: Fet
 
 
 def _check_user(app: str, user: str) -> None:
-    import pwd
-
     try:
         pwd.getpwnam(user)
     except KeyError:
