@@ -291,6 +291,7 @@ class GitStore:
         after a power cut between the two, the next checkout repoints again. `url` is
         not reached, so not checked here (the desired state's validation refuses what
         could not be a git URL)."""
+        self._sweep(key)
         with self._open(key) as repo:
             if repo is None:
                 raise GitError(f"{key} is not in the repository store")
@@ -412,6 +413,7 @@ class GitStore:
         dest = self._checkout_dir(key)
         if not dest.exists() or self.origin_url(key) == url:
             return self.fetch(key, url, want=want)
+        self._sweep(key)
         with Repo(str(dest)) as repo:
             done = self._transport.fetch_into(repo, url, mirror=False, want=want)
         integrity.remember(dest)
@@ -419,6 +421,7 @@ class GitStore:
 
     def checkout(self, key: str, commit: str) -> None:
         """Detach HEAD at `commit` and make the index and working tree match it."""
+        self._sweep(key)
         with self._open(key) as repo:
             found = None if repo is None else _commit(repo, commit)
             if repo is None or found is None:
@@ -600,12 +603,31 @@ class GitStore:
         return Path(tempfile.mkdtemp(prefix=prefix, dir=self._layout.repositories))
 
     def _sweep(self, key: str) -> None:
-        """Remove what an interrupted fetch or removal of `key` left behind."""
+        """Remove what an interrupted fetch or removal of `key` left behind, and the lock
+        files a killed write left in its checkout (`_stale_locks`)."""
         if not self._layout.repositories.is_dir():
             return
         for kind in ("clone", "old"):
             for leftover in self._layout.repositories.glob(f".{slug(key)}~{kind}~*"):
                 shutil.rmtree(leftover, ignore_errors=True)
+        _stale_locks(self._layout.repository_dir(key))
+
+
+def _stale_locks(checkout: Path) -> None:
+    """Remove the lock files a killed lpam left in `checkout`'s .git. dulwich, as git, writes
+    a ref, HEAD, the index, the config or the shallow list as NAME.lock renamed over NAME;
+    killed in between, NAME.lock stays and every later write of NAME is refused
+    (FileLocked), so a kill at the wrong instant would leave the store unusable. lpam writes
+    its store only under the apply lock (reconciler/workflow), and only the lock's holder
+    calls this (before it writes): a lock file found then is no live writer's."""
+    git = checkout / ".git"
+    if not git.is_dir():
+        return
+    for folder, pattern in ((git, "*.lock"), (git / "refs", "**/*.lock"),
+                            (git / "objects" / "pack", "*.lock")):
+        for found in folder.glob(pattern):
+            with contextlib.suppress(FileNotFoundError):
+                found.unlink()
 
 
 def _init(path: Path, url: str) -> Repo:

@@ -382,6 +382,32 @@ def test_interrupted_checkout_is_finished_not_refused(
     assert not (checkout / ".git/lpam-checkout").exists()
 
 
+def test_lock_files_a_killed_write_left_do_not_block_the_store(
+    served: Served, store: GitStore, layout: Layout
+) -> None:
+    """dulwich writes a ref, HEAD, the index, the config as NAME.lock renamed over NAME; an
+    lpam killed in between leaves NAME.lock, and the next fetch or checkout of that name was
+    refused (FileLocked: an internal error, found by the long random-fault run). Every
+    write to the store is made under the apply lock, so the next writer removes them."""
+    store.fetch(KEY, served.url)
+    store.checkout(KEY, served.c1)
+    checkout = layout.repository_dir(KEY)
+    left = [".git/refs/remotes/origin/main.lock", ".git/refs/tags/v1.lock", ".git/HEAD.lock",
+            ".git/index.lock", ".git/config.lock"]
+    for name in left:  # half-written, as a kill leaves them
+        (checkout / name).write_bytes(b"3f0")
+    c5 = served.repo.commit("fifth", {"README": "five\n"})
+    served.repo.push()
+
+    store.fetch(KEY, served.url)
+    store.checkout(KEY, c5)
+
+    assert git_out(checkout, "rev-parse", "origin/main", "HEAD").split() == [c5, c5]
+    assert git_out(checkout, "status", "--porcelain") == ""
+    assert (checkout / "README").read_text() == "five\n"
+    assert sorted(p.name for p in (checkout / ".git").rglob("*.lock")) == []
+
+
 def test_remove_deletes_the_checkout(served: Served, store: GitStore, layout: Layout) -> None:
     store.fetch(KEY, served.url)
     store.checkout(KEY, served.c4)
