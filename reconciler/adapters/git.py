@@ -366,6 +366,7 @@ class GitStore:
         whether it accepts that, see `Transport.push`). `when` is the commit's time (epoch
         seconds, from the caller's clock). Nothing in the checkout moves: the commit is
         made from objects alone."""
+        self._sweep(key)
         with self._open(key) as repo:
             if repo is None:
                 raise GitError(f"{key} is not in the repository store")

@@ -46,7 +46,7 @@ from reconciler.engine.records.state import read_override
 from reconciler.workflow.actor import agent
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.bundle import BundleFile
-from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT
+from reconciler.workflow.defaults import FETCH_LOCK_TIMEOUT, LOCK_TIMEOUT
 from reconciler.workflow.events import Note, Progress, Report
 from reconciler.workflow.followed import Followed as Followed
 from reconciler.workflow.followed import desired_of as _desired
@@ -225,9 +225,12 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     an unchanged status costs no connection and no commit. The branch holds at most
     `HISTORY` commits. A source that refuses pushes (a read-only mirror, a token without
     write access) costs a note, nothing more: the car keeps working and its status stays
-    local."""
+    local. The push is made under the apply lock, as every write to the store is (a kill
+    mid-write leaves a lock file only the lock's holder may sweep); when an apply holds it
+    longer than LOCK_TIMEOUT, the status waits for the next pass."""
     from reconciler.base.atomic import write_atomic
     from reconciler.core.publication import due, fingerprint, last_change, status_file
+    from reconciler.engine.execution.lock import apply_lock
     from reconciler.engine.records.state import read_record
     from reconciler.report import status as machine_status
 
@@ -247,8 +250,10 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     result: Published = "pushed"
     reason = None
     try:
-        _push(machine, config, branch, status_file(own, every, local, change),
-              when=int(now.timestamp()), report=report)
+        with apply_lock(machine.layout, timeout=LOCK_TIMEOUT) as lock:  # a push is a write
+            lock.note("publishing this car's status")
+            _push(machine, config, branch, status_file(own, every, local, change),
+                  when=int(now.timestamp()), report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:
         result, reason = "refused", exc.message
