@@ -42,6 +42,7 @@ from schemas.kinds import DocumentKind as K
 CURRENT: dict[DocumentKind, int] = {
     K.DESIRED_STATE: 2, K.STATE_RECORD: 8, K.PLAN: 2, K.AGENT_CONFIG: 1, K.AGENT_STATUS: 2,
     K.GENERATION_META: 1, K.CAR_STATUS: 3, K.OVERRIDE: 1,
+    K.TIMELINE: 1,
 }
 
 # kind -> {from version: (to version, step)}; a chain must end at CURRENT[kind].
@@ -63,6 +64,7 @@ STEPS: dict[DocumentKind, dict[str, tuple[str, Step]]] = {
                    "1": ("2", car_status_v1_to_v2.upgrade),
                    "2": ("3", car_status_v2_to_v3.upgrade)},
     K.OVERRIDE: {},
+    K.TIMELINE: {},
 }
 
 _MISSING_HINTS: dict[DocumentKind, str] = {
@@ -76,6 +78,7 @@ _MISSING_HINTS: dict[DocumentKind, str] = {
     K.CAR_STATUS: "the car publishes a new one with its next status",
     K.OVERRIDE: "this file was not written by lpam; move it aside (the car then follows "
     "its fleet again)",
+    K.TIMELINE: "this line was not written by lpam",
 }
 
 _NUMBER = re.compile(r"^[0-9]{1,9}(\.[0-9]{1,9})?$")
@@ -84,7 +87,7 @@ _LABELS: dict[DocumentKind, str] = {
     K.DESIRED_STATE: "desired state", K.STATE_RECORD: "state record", K.PLAN: "plan",
     K.AGENT_CONFIG: "agent configuration", K.AGENT_STATUS: "agent status",
     K.GENERATION_META: "generation metadata", K.CAR_STATUS: "car's published status",
-    K.OVERRIDE: "local override",
+    K.OVERRIDE: "local override", K.TIMELINE: "timeline",
 }
 
 Position = Callable[[Sequence[Union[str, int]]], Union[tuple[int, int], tuple[None, None]]]

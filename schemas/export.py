@@ -27,6 +27,7 @@ from schemas.override import LocalOverride
 from schemas.plan import Plan
 from schemas.record import StateRecord
 from schemas.report import StatusReport
+from schemas.timeline import Edge, Software
 
 DOCUMENTS: dict[str, type[BaseModel]] = {
     "desired-state.v2.schema.json": DesiredState,
@@ -39,6 +40,8 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "car-status.v3.schema.json": CarStatus,
     "override.v1.schema.json": LocalOverride,
     "status-report.v1.schema.json": StatusReport,
+    "timeline-edge.v1.schema.json": Edge,
+    "timeline-software.v1.schema.json": Software,
 }
 FOLDER = Path(__file__).resolve().parent / "json"
 FROZEN: dict[str, str] = {

@@ -29,3 +29,4 @@ class DocumentKind(StrEnum):
     GENERATION_META = "generation-meta"
     CAR_STATUS = "car-status"
     OVERRIDE = "override"
+    TIMELINE = "timeline"

@@ -10,7 +10,7 @@ a power cut can only lose a line, never leave an interval that says more than wa
 Each edge carries a `Stamp`: the boot it happened in (the kernel's boot id), the seconds
 since that boot (CLOCK_BOOTTIME, which counts suspend and is never set) and the wall clock.
 A Pi has no real-time clock: until GPS sets the time, its wall clock is the last
-shutdown's, hours off. Within one boot, wall − boottime is constant unless the clock was
+shutdown's, hours off. Within one boot, wall - boottime is constant unless the clock was
 set, so a later stamp of the same boot corrects every earlier one.
 
 What ran is a `Software`: the generation's repositories at their commits, its tree, its
@@ -43,6 +43,7 @@ How = Literal[
     "exited",  # seen stopped by its service manager without lpam stopping it
     "crashed",  # seen restarted by its service manager (a new process)
     "power-lost",  # found running in an earlier boot: it ended between `since` and `at`
+    "manager",  # its service manager started it again by itself (at boot, or after it gave up)
     "clock",  # a clock edge
 ]
 
@@ -58,7 +59,7 @@ class Stamp(BaseModel):
 
     @property
     def offset(self) -> float:
-        """wall − boottime: constant within a boot until the clock is set."""
+        """wall - boottime: constant within a boot until the clock is set."""
         return self.wall.timestamp() - self.mono
 
 
@@ -126,3 +127,29 @@ def params_digest(params: dict[str, str]) -> str:
 def software_digest(software: Software) -> str:
     text = json.dumps(software.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:20]
+
+
+class Running(BaseModel):
+    """An interval lpam saw begin and not yet end: what the next look at the service
+    manager (and the next boot) compares with, so a crash, an exit or a power cut closes
+    it with the last moment it was known running (`alive`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    app: str
+    generation: str
+    software: str | None = None
+    unit: str | None = Field(default=None, description="the unit whose state says it runs")
+    pid: int | None = Field(default=None, description="None: not looked at yet")
+    restarts: int | None = Field(default=None, description="None: not looked at yet")
+    began: Stamp
+    alive: Stamp = Field(description="the last moment it was known running")
+
+
+class RunningFile(BaseModel):
+    """`var/lib/lpam/timeline/running.json`, rewritten atomically at every edge and look."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    version: Literal[1] = TIMELINE_VERSION
+    running: list[Running] = Field(default_factory=list)

@@ -788,9 +788,10 @@ def cmd_services(args: argparse.Namespace, layout: Layout) -> int:
 
 def cmd_status(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.report import status
-    from reconciler.workflow.machine import services_for
+    from reconciler.workflow.machine import Machine, services_for
 
     services = services_for(layout, args.services)
+    Machine(layout, given_services=services).look()  # a crash, a power cut: on the timeline
     if args.json:
         calling: Calling = getattr(args, "calling", Calling())
         print(json.dumps(calling.spell_values(

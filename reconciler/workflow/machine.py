@@ -27,7 +27,8 @@ if TYPE_CHECKING:
     from reconciler.engine.execution.lock import Lock
     from reconciler.engine.execution.ports import DependencyPorts, Gate, Listener, Services
     from schemas.desired import DesiredState
-    from schemas.record import Actor, DesiredRef
+    from schemas.record import Actor, DesiredRef, StateRecord
+    from schemas.timeline import Edge, How, Stamp
 
 # Imported inside functions: each adapter (dulwich, supervisor, packaging, pydantic...) loads
 # only when its port is used; every command imports this module (start-up; test_imports.py).
@@ -82,6 +83,9 @@ class Machine:
     network_timeout: float = 60.0
     clock: Callable[[], datetime] = field(default=now)
     stop_requested: Callable[[], bool] = field(default=lambda: False)  # the agent's SIGTERM
+    # the timeline's clock (None: this boot's id and boottime with `clock`): a test moves
+    # the boot and the wall clock through it
+    stamp: Callable[[], Stamp] | None = None
 
     @classmethod
     def at(cls, layout: Layout, *, services: str | None = None,
@@ -127,6 +131,22 @@ class Machine:
 
         return VehicleListener(desired.vehicle, layout=self.layout, base_dir=base_dir)
 
+    def look(self, record: StateRecord | None = None) -> list[Edge]:
+        """Write to the timeline what happened to the running apps since the last look (a
+        crash, an exit, a power cut, the clock set): before any run changes an app, at
+        `lpam status` and at each agent pass. A user who cannot write the timeline (status
+        without root) leaves it to the next look."""
+        from reconciler.base.errors import LpamError
+        from reconciler.engine.execution.provenance import stamp_now, watch
+        from reconciler.engine.records.state import read_record
+
+        try:
+            return watch(self.layout, record if record is not None else
+                         read_record(self.layout), self.services,
+                         stamp_now(self.stamp, self.clock))
+        except (OSError, LpamError):
+            return []
+
     def store(self) -> GitStore:
         from reconciler.adapters.git import GitStore
 
@@ -137,7 +157,7 @@ class Machine:
                 listener: Listener | None = None, resume: str | None = None,
                 desired: DesiredRef | None = None,
                 retry_after: float | None = None,
-                by: Actor | None = None) -> tuple[Context, Path]:
+                by: Actor | None = None, why: How = "apply") -> tuple[Context, Path]:
         """What the steps of one run may touch, and the log of its scripts and commands."""
         from reconciler.adapters.catkin import find_underlay
         from reconciler.adapters.folders import DiskFolders
@@ -147,16 +167,18 @@ class Machine:
 
         started = self.clock().strftime("%Y%m%dT%H%M%SZ")
         log = self.layout.logs / f"{command}-{started}-{os.getpid()}.log"
+        record = read_record(self.layout)
+        self.look(record)  # what happened since the last look comes before this run's edges
         ctx = Context(
             layout=self.layout, store=store, clock=self.clock,
-            record=read_record(self.layout), services=self.services,
+            record=record, services=self.services,
             scripts=ScriptRunner(root=self.layout.root, log=log, runs=self.layout.runs,
                                  timeout=script_timeout, lock_fd=lock.fd, note=lock.note),
             deps=self.deps, log=CommandLog(log, report), stop_requested=self.stop_requested,
             gate=gate, gate_wait=gate_wait, listener=listener,
             command=resume or f"lpam {command}", desired=desired, underlay=find_underlay,
             folders=DiskFolders(layout=self.layout, store=store), retry_after=retry_after,
-            by=by,
+            by=by, why=why, stamp=self.stamp,
         )
         return ctx, log
 

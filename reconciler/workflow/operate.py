@@ -50,7 +50,8 @@ def operate_installed(machine: Machine, action: OperatorAction, *, file: Path | 
     with apply_lock(machine.layout, timeout=options.lock_wait()) as lock:
         ctx, _ = machine.context(machine.store(), lock, command=str(action),
                                  script_timeout=options.script_timeout, report=report,
-                                 gate=gate, gate_wait=options.wait, by=options.by)
+                                 gate=gate, gate_wait=options.wait, by=options.by,
+                                 why="operator")
         return operate(ctx, action, progress=lambda text: report(Progress(text)), app=app)
 
 
@@ -73,7 +74,8 @@ def roll_back(machine: Machine, *, file: Path | None, force: bool, options: Appl
         # what resumes a cut-off rollback is an apply, not another rollback (resumed_by)
         ctx, _ = machine.context(machine.store(), lock, command=resumed_by("rollback"),
                                  script_timeout=options.script_timeout, report=report,
-                                 gate=gate, gate_wait=options.wait, by=options.by)
+                                 gate=gate, gate_wait=options.wait, by=options.by,
+                                 why="rollback")
         entries = previous_good(ctx)
         kept = stays_stopped(ctx.record, entries)
         if kept:  # said before the question: the answer covers it

@@ -99,6 +99,7 @@ def sync(machine: Machine, config: AgentConfig, *, report: Report,
     as the branch `status/<vehicle>` of the source when the source accepts pushes. With
     `bundle`, the source and what it pins come from that file instead of the network."""
     online: list[bool] = []
+    machine.look()  # each pass writes what happened to the apps (after a boot: a power cut)
     done = _pass(machine, config, report=report, options=options, fetch_only=fetch_only,
                  bundle=bundle, online=online)
     if online:

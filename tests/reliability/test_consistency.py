@@ -217,7 +217,8 @@ class TwinMachine(Machine):
     def context(self, store: Any, lock: Any, *, command: str, script_timeout: float,
                 report: Any, gate: Any = None, gate_wait: float = 0.0, listener: Any = None,
                 resume: str | None = None, desired: Any = None,
-                retry_after: float | None = None, by: Any = None) -> tuple[Context, Path]:
+                retry_after: float | None = None, by: Any = None,
+                why: Any = "apply") -> tuple[Context, Path]:
         log = self.layout.logs / f"{command}.log"
         ctx = Context(layout=self.layout, store=store, clock=self.clock,
                       record=read_record(self.layout), services=self.services,
@@ -225,7 +226,7 @@ class TwinMachine(Machine):
                       monotonic=self.world.tick, gate=gate, gate_wait=gate_wait,
                       command=resume or f"lpam {command}", desired=desired,
                       folders=DiskFolders(layout=self.layout, store=store),
-                      retry_after=retry_after, by=by)
+                      retry_after=retry_after, by=by, why=why)
         return ctx, log
 
 

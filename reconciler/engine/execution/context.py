@@ -25,8 +25,10 @@ from reconciler.engine.execution.ports import (
     Services,
     Store,
 )
+from reconciler.engine.execution.provenance import note
 from reconciler.engine.records.state import write_record
 from schemas.record import Actor, AppRecord, DesiredRef, StateRecord
+from schemas.timeline import How, Stamp
 
 
 @dataclass
@@ -61,6 +63,12 @@ class Context:
     # chooses adapters gives it.
     folders: AppFolders | None = None
     by: Actor | None = None  # who asked for this run: on the history and last apply it writes
+    # Why apps begin and end in this run, as the timeline says it (an automatic rollback
+    # sets "rollback" for its own steps: engine/execution/recovery.py).
+    why: How = "apply"
+    # Now as the timeline stamps it (None: this boot's id and boottime with `clock`):
+    # tests move the boot and the wall clock through it.
+    stamp: Callable[[], Stamp] | None = None
 
     def dependencies(self) -> DependencyPorts:
         if self.deps is None:  # a caller that plans dependencies must give their ports
@@ -77,7 +85,9 @@ class Context:
     def save(self, record: StateRecord) -> None:
         """Write `record` (a step's intent before its work, its outcome after). Failing,
         nothing is done that it would have recorded: StateWriteError."""
+        before = self.record
         try:
+            note(self, before, record)  # what began and ended, before the record says so
             self.record = write_record(self.layout, record)
         except OSError as exc:
             raise StateWriteError(

@@ -250,6 +250,7 @@ def roll_back(failed: Step, exc: LpamError, previous: list[AppRecord], ctx: Cont
             _note_rollback(ctx, previous, f"step {failed.id} failed: {exc.message}",
                            health=isinstance(exc, HealthError))
         progress(f"{what} …")
+        ctx.why = "rollback"  # what its steps start and stop, the timeline says why
         for step in steps:
             progress(f"  rollback: {step.id} …")
             journalled(step, f"rollback/{step.id}", ctx, journal)

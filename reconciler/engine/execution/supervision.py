@@ -18,6 +18,7 @@ from reconciler.base.unit import Unit, UnitState, unit_name
 from reconciler.core.planning.model import Generation, app_folder
 from reconciler.engine.execution.context import Context
 from reconciler.engine.execution.ports import DEFAULT_PATH, SOURCE_THEN_EXEC
+from reconciler.engine.execution.provenance import provenance_environment
 from schemas.record import AppRecord
 
 SETTLE_POLL = 0.25  # seconds between looks at a unit while it settles
@@ -75,6 +76,7 @@ def unit_for(ctx: Context, app: AppRecord, place: Path, run: Runtime | None = No
     env = dict(app.params)
     env.update(run.environment)
     env.update(LPAM_ROOT=str(ctx.layout.root), LPAM_APP=app.name, LPAM_APP_DIR=str(place))
+    env.update(provenance_environment(ctx, app))
     user = None if app.user in (None, getpass.getuser()) else app.user
     folder = app_folder(app.path)
     return Unit(name=unit_name(folder), argv=tuple(argv), directory=place, environment=env,
