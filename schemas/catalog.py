@@ -25,7 +25,13 @@ from pydantic import (
 )
 
 from schemas.dependency import check_debian_package, check_requirement
-from schemas.names import check_app_name, check_owner_repo, check_ref, check_url
+from schemas.names import (
+    check_app_name,
+    check_data,
+    check_owner_repo,
+    check_ref,
+    check_url,
+)
 from schemas.service import Health, check_argv, check_launch
 
 CATALOG_FILE = "libpanda-apps.yaml"
@@ -126,6 +132,14 @@ class RawApp(_Strict):
     command: list[StrictStr] | None = None
     launch: StrictStr | None = None
     health: Health | None = None
+    data: list[StrictStr] = Field(
+        default_factory=list, description="where the app writes data files (absolute "
+        "paths or globs): lpam stamps each finished one with the software that ran")
+
+    @field_validator("data")
+    @classmethod
+    def _data(cls, value: list[str]) -> list[str]:
+        return check_data(value)
 
     @field_validator("name")
     @classmethod
@@ -189,6 +203,7 @@ class CatalogApp(_Strict):
     launch: str | None = Field(
         default=None, description="scriptless app: PACKAGE/FILE.launch run with roslaunch")
     health: Health | None = None
+    data: list[str] = Field(default_factory=list, description="where it writes data files")
 
 
 class Catalog(_Strict):
@@ -257,6 +272,7 @@ def normalise(raw: RawCatalog) -> Catalog:
                 command=app.command,
                 launch=app.launch,
                 health=app.health,
+                data=list(app.data),
             )
         )
     return Catalog(apps=apps)

@@ -27,11 +27,21 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictStr, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    StrictStr,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from schemas.names import (
     URL_SCHEMES,
     check_app_name,
+    check_data,
     check_owner_repo,
     check_param_name,
     check_ref,
@@ -132,6 +142,23 @@ class AppSpec(BaseModel):
         "user named in /etc/libpanda.d/libpanda_usr, else root)")
     health: Health | None = Field(
         default=None, description="overrides the catalog's health check, field by field")
+    data: list[StrictStr] | None = Field(
+        default=None, description="where the app writes data files (absolute paths or "
+        "globs), for an app whose catalog cannot say it; None: the catalog's")
+
+    @field_validator("data")
+    @classmethod
+    def _data(cls, value: list[str] | None) -> list[str] | None:
+        return None if value is None else check_data(value)
+
+    @model_serializer(mode="wrap")
+    def _data_written(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """`data` only when given: a desired state's fingerprint, which holds are held
+        against, stays what an lpam before `data:` recorded (core/planning/holds.py)."""
+        dumped = handler(self)
+        if isinstance(dumped, dict) and dumped.get("data", ()) is None:
+            del dumped["data"]
+        return dumped
 
     @field_validator("name")
     @classmethod

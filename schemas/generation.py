@@ -46,18 +46,24 @@ class GenerationFields(BaseModel):
         "known (installed before lpam knew claims), taken as `panda`, which every app "
         "owned then")
 
+    data: list[str] = Field(
+        default_factory=list, description="where it writes data files (absolute paths or "
+        "globs, under lpam's root): lpam stamps each finished one with what ran")
+
     @property
     def scriptless(self) -> bool:
         return self.command is not None or self.launch is not None
 
     @model_serializer(mode="wrap")
     def _claims_written(self, handler: SerializerFunctionWrapHandler) -> Any:
-        """`resources` is written only when known: a plan's seal, a state record and a
-        generation's metadata written before apps named their claims stay what they
-        were (a saved plan's seal still matches)."""
+        """`resources` is written only when known, and `data` only when given: a plan's
+        seal, a state record and a generation's metadata written before apps named them
+        stay what they were (a saved plan's seal still matches)."""
         data = handler(self)
         if isinstance(data, dict) and data.get("resources", ()) is None:
             del data["resources"]
+        if isinstance(data, dict) and data.get("data", None) == []:
+            del data["data"]  # as for resources: what older lpams wrote stays as it was
         return data
 
     @property

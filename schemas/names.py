@@ -95,6 +95,20 @@ UNSAFE_PARAMS = frozenset({
 UNSAFE_PARAM_PREFIXES = ("LD_", "PYTHON", "LPAM_", "BASH_FUNC_", "DYLD_", "GCONV_")
 
 
+DATA_LIMIT = 20  # globs per app: a few folders, not a file list
+
+
+def check_data(value: list[str]) -> list[str]:
+    """`data:` globs: absolute paths (lpam reads them under its --root), no `..`, few."""
+    if len(value) > DATA_LIMIT:
+        raise ValueError(f"give at most {DATA_LIMIT} globs")
+    for glob in value:
+        if not glob.startswith("/") or ".." in glob.split("/") or not glob.isprintable():
+            raise ValueError(f"{glob!r}: give an absolute path or glob, without '..', such as "
+                             "/var/panda/CyverseData/JmscslgroupData/PandaData/*/*.csv")
+    return value
+
+
 def check_param_name(name: str) -> str:
     """A parameter becomes an environment variable of every app script, and parameters may
     come from a phone over Bluetooth: names that change how bash, the dynamic loader or an

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from datetime import datetime
+from datetime import datetime, timezone
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -59,8 +59,11 @@ class Stamp(BaseModel):
 
     @property
     def offset(self) -> float:
-        """wall - boottime: constant within a boot until the clock is set."""
-        return self.wall.timestamp() - self.mono
+        """wall - boottime: constant within a boot until the clock is set (a wall clock
+        without a zone is UTC, as lpam writes it)."""
+        wall = self.wall if self.wall.tzinfo is not None else \
+            self.wall.replace(tzinfo=timezone.utc)
+        return wall.timestamp() - self.mono
 
 
 class Software(BaseModel):
@@ -94,6 +97,7 @@ class Software(BaseModel):
         "/<file>`")
     desired_fingerprint: str | None = None
     vehicle: str | None = Field(default=None, description="the car's VIN or vehicle id")
+    data: list[str] = Field(default_factory=list, description="where it writes data files")
 
     @property
     def digest(self) -> str:
@@ -153,3 +157,68 @@ class RunningFile(BaseModel):
 
     version: Literal[1] = TIMELINE_VERSION
     running: list[Running] = Field(default_factory=list)
+
+
+Certainty = Literal["recorded", "corrected", "uncertain"]
+
+
+class When(BaseModel):
+    """A moment as a sidecar says it: the best estimate, its bounds, how sure."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    when: datetime
+    earliest: datetime
+    latest: datetime
+    certainty: Certainty = Field(description="recorded: the car's clock, not known wrong; "
+                                 "corrected: mapped onto a later setting of the clock in "
+                                 "the same boot; uncertain: only the window is known")
+
+
+class Ran(BaseModel):
+    """One generation that ran during the file's span."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    app: str
+    generation: str
+    software: Software | None = Field(description="None: it began before lpam kept a "
+                                      "timeline, what ran is not recorded")
+    began: When
+    began_how: str
+    ended: When | None = Field(description="None: still running when the file was stamped")
+    ended_how: str | None = None
+    restarts: list[When] = Field(default_factory=list)
+
+
+class FileSpan(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    first: datetime | None
+    last: datetime | None
+    source: Literal["csv", "candump", "rosbag", "file-times"]
+    vehicle: str | None = None
+
+
+SIDECAR_VERSION: Literal[1] = 1
+
+
+class Sidecar(BaseModel):
+    """`<file>.provenance.json`, written next to each finished data file, so that what
+    made it travels with it when it is uploaded (to CyVerse, by VIN)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    version: Literal[1] = SIDECAR_VERSION
+    file: str = Field(description="the data file's name, beside this one")
+    size: int = Field(description="its size when stamped: a file that grew since is "
+                      "stamped again")
+    span: FileSpan
+    verdict: str = Field(description="ran | nothing ran | before lpam | other vehicle | "
+                         "no times | clock uncertain")
+    said: str | None = None
+    ran: list[Ran] = Field(default_factory=list)
+    or_ran: list[Ran] = Field(default_factory=list, description="clock uncertain: what "
+                              "ran if the file's times were written before the clock was set")
+    vehicle: str | None = Field(default=None, description="the car that stamped it")
+    lpam: str

@@ -20,7 +20,9 @@ import shlex
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -140,7 +142,8 @@ def parser() -> argparse.ArgumentParser:
         return sub.add_parser(name, parents=[common], help=what)
 
     for declare in (_plan_apply, _status_operate, _logs_history_rollback, _sync_agent,
-                    _gates_install_bundle, _fleet_pin_services, _validate_import):
+                    _gates_install_bundle, _fleet_pin_services, _provenance,
+                    _validate_import):
         declare(new)
     return lpam
 
@@ -300,6 +303,40 @@ def _fleet_pin_services(new: New) -> None:
     services = new("services", "the service manager lpam started (supervisord)")
     services.add_argument("action", choices=("shutdown",),
                           help="shutdown: stop the supervisord lpam started for this root")
+
+
+def _provenance(new: New) -> None:
+    prov = new("provenance", "which software ran while a data file was recorded")
+    prov.add_argument("files", nargs="*", type=Path, metavar="FILE",
+                      help="data files (CSV, candump, ROS bag, or any: its time)")
+    prov.add_argument("--at", metavar="TIME", type=_moment,
+                      help="what ran at TIME (ISO 8601, or seconds since the epoch)")
+    prov.add_argument("--between", nargs=2, metavar=("T1", "T2"), type=_moment,
+                      help="what ran at any instant from T1 to T2")
+    prov.add_argument("--desired", action="store_true",
+                      help="print a pinned desired state that installs that software again")
+    prov.add_argument("--repo", type=Path, metavar="DIR",
+                      help="read a car's published timeline from this clone of the fleet "
+                      "repository instead of this car's")
+    prov.add_argument("--vehicle", metavar="ID", help="with --repo: which car's")
+    prov.add_argument("--stamp", action="store_true",
+                      help="write FILE.provenance.json beside each finished data file the "
+                      "apps declare (the agent does this each pass)")
+    _add(prov, "json")
+
+
+def _moment(text: str) -> datetime:
+    """A time as a user writes it: ISO 8601 (UTC unless it says otherwise) or epoch seconds."""
+    try:
+        moment = datetime.fromtimestamp(float(text), tz=timezone.utc)
+    except (ValueError, OverflowError, OSError):
+        try:
+            moment = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not a time: write e.g. 2026-03-14T10:15:00Z or 1773483300"
+            ) from None
+    return moment if moment.tzinfo is not None else moment.replace(tzinfo=timezone.utc)
 
 
 def _validate_import(new: New) -> None:
@@ -820,12 +857,63 @@ def cmd_import(args: argparse.Namespace, layout: Layout) -> int:
     return EXIT_OK
 
 
+def cmd_provenance(args: argparse.Namespace, layout: Layout) -> int:
+    from reconciler.engine.records.timeline import Timeline
+    from reconciler.workflow import provenance as prov
+
+    if args.stamp:
+        stamped = prov.stamp_finished(layout, now=time.time(), budget=prov.SCAN_LIMIT)
+        print("\n".join(f"stamped {p}" for p in stamped) or "No finished data file needed "
+              "a stamp.")
+        return EXIT_OK
+    car = prov.from_fleet(args.repo, args.vehicle) if args.repo is not None else \
+        prov.known(Timeline(layout))
+    if args.at is not None:
+        answers = [prov.between(args.at, args.at, car)]
+    elif args.between is not None:
+        start, end = sorted(args.between)
+        answers = [prov.between(start, end, car)]
+    elif args.files:
+        answers = [prov.of_file(path, car) for path in args.files]
+    else:
+        raise LpamError("give FILE…, --at TIME or --between T1 T2")
+    if args.desired:
+        return _print_desired(answers, car)
+    if args.json:
+        print(json.dumps([prov.as_json(a, car) for a in answers], indent=2))
+    else:
+        print("\n".join(line for a in answers for line in prov.describe(a, car)))
+    if car.unreadable:
+        print(f"note: {car.unreadable} line(s) of the timeline could not be read (torn by "
+              "a power cut, or written by a newer lpam)", file=sys.stderr)
+    return EXIT_OK
+
+
+def _print_desired(answers: Sequence[Any], car: Any) -> int:
+    from reconciler.workflow import provenance as prov
+
+    found = [i for a in answers for i in a.found]
+    if not found or any(a.verdict not in ("ran",) for a in answers):
+        said = "; ".join(f"{a.verdict}: {a.said}" for a in answers if a.verdict != "ran")
+        raise LpamError(f"no one software to reproduce: {said or 'nothing ran'}",
+                         hint="ask for one moment with --at TIME")
+    try:
+        text, caveats = prov.desired_for(found, car)
+    except ValueError as exc:
+        raise LpamError(str(exc), hint="ask for one moment with --at TIME") from None
+    print(text, end="")
+    for caveat in caveats:
+        print(f"note: {caveat}", file=sys.stderr)
+    return EXIT_OK
+
+
 COMMANDS = {
     "plan": cmd_plan,
     "apply": cmd_apply,
     "status": cmd_status,
     "validate": cmd_validate,
     "import-lpam": cmd_import,
+    "provenance": cmd_provenance,
     "services": cmd_services,
     "sync": cmd_sync,
     "agent": cmd_agent,

@@ -142,7 +142,7 @@ class Machine:
 
         try:
             return watch(self.layout, record if record is not None else
-                         read_record(self.layout), self.services,
+                         read_record(self.layout), self.services.state,
                          stamp_now(self.stamp, self.clock))
         except (OSError, LpamError):
             return []

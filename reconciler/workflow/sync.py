@@ -27,10 +27,14 @@ terminal), the change is the fleet's.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from reconciler.base.atomic import write_atomic
 from reconciler.base.errors import (
     ConfigError,
     Deferred,
@@ -52,6 +56,12 @@ from reconciler.workflow.followed import Followed as Followed
 from reconciler.workflow.followed import desired_of as _desired
 from reconciler.workflow.followed import followed, read_status, vehicle_id
 from reconciler.workflow.machine import Machine
+from reconciler.workflow.provenance import (
+    TIMELINE_FILE,
+    TIMELINE_SUFFIX,
+    published_timeline,
+    stamp_finished,
+)
 from reconciler.workflow.source import SOURCE_KEY, DesiredStateSource
 from reconciler.workflow.source import join_url as join_url
 from schemas.agent import (
@@ -100,11 +110,24 @@ def sync(machine: Machine, config: AgentConfig, *, report: Report,
     `bundle`, the source and what it pins come from that file instead of the network."""
     online: list[bool] = []
     machine.look()  # each pass writes what happened to the apps (after a boot: a power cut)
+    stamp_data(machine, report)
     done = _pass(machine, config, report=report, options=options, fetch_only=fetch_only,
                  bundle=bundle, online=online)
     if online:
         publish(machine, config, report)
     return done
+
+
+def stamp_data(machine: Machine, report: Report) -> None:
+    """Each pass stamps the data files finished since the last one (bounded: a backlog
+    takes several passes); a file it cannot stamp is said, and never stops the pass."""
+    try:
+        stamped = stamp_finished(machine.layout, now=time.time())
+    except (OSError, LpamError) as exc:
+        report(Note(f"data files not stamped this pass: {exc}"))
+        return
+    if stamped:
+        report(Note(f"stamped {len(stamped)} data file(s) with the software that made them"))
 
 
 def _pass(machine: Machine, config: AgentConfig, *, report: Report,
@@ -229,7 +252,6 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     local. The push is made under the apply lock, as every write to the store is (a kill
     mid-write leaves a lock file only the lock's holder may sweep); when an apply holds it
     longer than LOCK_TIMEOUT, the status waits for the next pass."""
-    from reconciler.base.atomic import write_atomic
     from reconciler.core.publication import due, fingerprint, last_change, status_file
     from reconciler.engine.execution.lock import apply_lock
     from reconciler.engine.records.state import read_record
@@ -255,6 +277,8 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
             lock.note("publishing this car's status")
             _push(machine, config, branch, status_file(own, every, local, change),
                   when=int(now.timestamp()), report=report)
+            _push_timeline(machine, config, own.vehicle, when=int(now.timestamp()),
+                           report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:
         result, reason = "refused", exc.message
@@ -272,8 +296,25 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
                  own.model_copy(update={"publication": done}).model_dump_json(indent=2) + "\n")
 
 
+def _push_timeline(machine: Machine, config: AgentConfig, vehicle: str, *, when: int,
+                   report: Report) -> None:
+    """The car's timeline (its recent edges and what ran in them, bounded) on the branch
+    `status/<vehicle>.timeline`, when it changed since the last push: `lpam provenance`
+    in a clone of the fleet repository answers for this car's files without the car."""
+    layout = machine.layout
+    content = published_timeline(layout, vehicle)
+    mark = layout.var / "timeline" / "published"
+    digest = hashlib.sha256(content).hexdigest()
+    with contextlib.suppress(OSError):
+        if mark.read_text(encoding="ascii").strip() == digest:
+            return
+    _push(machine, config, STATUS_PREFIX + vehicle + TIMELINE_SUFFIX, content, when=when,
+          report=report, file=TIMELINE_FILE)
+    write_atomic(mark, digest + "\n")
+
+
 def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *, when: int,
-          report: Report) -> None:
+          report: Report, file: str | None = None) -> None:
     """One status commit on `branch`, on top of its tip while it holds fewer than `HISTORY`
     commits, else starting it afresh. A server that refuses to rewrite the branch (git's
     receive.denyNonFastForwards, a protected branch) gets it on top after all: a status
@@ -284,13 +325,14 @@ def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *,
     length = store.history_length(SOURCE_KEY, branch, limit=HISTORY)
     keep = keeps_parent(length)
     vehicle = branch.removeprefix(STATUS_PREFIX)
+    name = file or STATUS_FILE
     try:
-        store.push_file(SOURCE_KEY, config.source.url, branch, STATUS_FILE, content,
+        store.push_file(SOURCE_KEY, config.source.url, branch, name, content,
                         f"status of {vehicle}", when=when, parent=keep)
     except PushRefusedError:
         if keep or length == 0:
             raise
-        store.push_file(SOURCE_KEY, config.source.url, branch, STATUS_FILE, content,
+        store.push_file(SOURCE_KEY, config.source.url, branch, name, content,
                         f"status of {vehicle}", when=when, parent=True)
         report(Note(f"the fleet repository does not let this car rewrite {branch}, so its "
                     f"history grows past {HISTORY} commits: allow non-fast-forward pushes "

@@ -35,11 +35,14 @@ def machine(tmp_path: Path) -> Machine:
 
 def test_the_status_push_is_made_holding_the_apply_lock(
         machine: Machine, monkeypatch: pytest.MonkeyPatch) -> None:
-    held: list[str | None] = []
-    monkeypatch.setattr(sync, "_push", lambda m, *a, **k: held.append(holder(m.layout)))
+    held: list[tuple[str, str | None]] = []
+    monkeypatch.setattr(sync, "_push", lambda m, config, branch, *a, **k: held.append(
+        (branch, holder(m.layout))))
     sync.publish(machine, CONFIG, report=lambda event: None)
-    # what another lpam waiting for the lock is told
-    assert len(held) == 1 and str(held[0]).endswith(": publishing this car's status")
+    # the status, then the timeline (issue 33), each under the lock; what another lpam
+    # waiting for the lock is told
+    assert [branch for branch, _ in held] == ["status/rav4-07", "status/rav4-07.timeline"]
+    assert all(str(who).endswith(": publishing this car's status") for _, who in held)
     published = read_agent_status(machine.layout)
     assert published is not None and published.publication is not None
     assert published.publication.result == "pushed"

@@ -163,7 +163,7 @@ def generation_of(new: AppTarget, gen: str) -> AppGeneration:
         ros_build=(deps.ros_build or UNKNOWN) if ros else None,
         ros_workspace=deps.workspace.path if ros and deps.workspace else None,
         ros_user=deps.workspace.user if ros and deps.workspace else None,
-        resources=sorted(new.resources))
+        resources=sorted(new.resources), data=list(new.data))
 
 
 def target_of(app: AppRecord) -> AppTarget:
@@ -173,7 +173,7 @@ def target_of(app: AppRecord) -> AppTarget:
                      service=app.service,
                      command=tuple(app.command) if app.command is not None else None,
                      launch=app.launch, user=app.user, health=HealthTarget(settle_seconds=0),
-                     resources=app.claims, proven=app.good)
+                     resources=app.claims, data=tuple(app.data), proven=app.good)
 
 
 def refreshed(record: StateRecord, lives: Mapping[str, UnitState],

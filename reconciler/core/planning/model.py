@@ -160,6 +160,7 @@ class AppTarget:
     health: HealthTarget = field(default_factory=HealthTarget)
     deps: Deps = field(default_factory=Deps)
     resources: frozenset[str] = frozenset()
+    data: tuple[str, ...] = ()  # where it writes data files: stamped with what ran
     proven: bool = False  # it proved good before (what a rollback returns to): no re-check
     # the lifecycle scripts its folder has (None: not read), for the plan's words only
     scripts: frozenset[str] | None = None

@@ -26,13 +26,13 @@ from reconciler import __version__
 from reconciler.base.atomic import write_atomic
 from reconciler.base.boot import boot_id, boottime
 from reconciler.base.layout import Layout
+from reconciler.base.unit import UnitState
 from reconciler.engine.records.timeline import Timeline
 from schemas.record import ACTIVE, AppRecord, StateRecord
 from schemas.timeline import Edge, How, Running, Software, Stamp, params_digest
 
 if TYPE_CHECKING:
     from reconciler.engine.execution.context import Context
-    from reconciler.engine.execution.ports import Services
 
 PIP_LIMIT = 2000  # distributions listed at most (a ROS environment has a few hundred)
 
@@ -45,29 +45,38 @@ def stamp_now(given: Callable[[], Stamp] | None, clock: Callable[[], datetime]) 
 
 
 def note(ctx: Context, before: StateRecord, after: StateRecord) -> None:
-    """Write the edges between `before` and `after`: ended first (a cutover stops the old
-    app before it starts the new one), then began."""
-    was = {a.name: a for a in before.apps if a.status in ACTIVE}
-    now = {a.name: a for a in after.apps if a.status in ACTIVE}
-    ended = [a for n, a in was.items() if n not in now or now[n].generation != a.generation]
-    began = [a for n, a in now.items() if n not in was or was[n].generation != a.generation]
-    if not ended and not began:
+    """Write the edges of this change of the record: an app the record now shows active
+    that the timeline does not (a start, from whatever state), and one the timeline shows
+    running that the record no longer shows active (a stop). Compared with the timeline's
+    own running.json, not with `before`: a look that closed an interval (a power cut) is
+    followed by the start that opens the next, though the record said `running` all along."""
+    if _statuses(before) == _statuses(after):
         return
     timeline = Timeline(ctx.layout)
     with timeline.locked():  # an apply's edges are written even if a look hangs on
-        _note(ctx, timeline, after, ended, began)
+        running = {r.app: r for r in timeline.running()}
+        now = {a.name: a for a in after.apps if a.status in ACTIVE}
+        ended = [r for r in running.values()
+                 if r.app not in now or now[r.app].generation != r.generation]
+        began = [a for a in now.values()
+                 if a.name not in running or running[a.name].generation != a.generation]
+        if ended or began:
+            _note(ctx, timeline, after, running, ended, began)
 
 
-def _note(ctx: Context, timeline: Timeline, after: StateRecord, ended: list[AppRecord],
-          began: list[AppRecord]) -> None:
+def _statuses(record: StateRecord) -> set[tuple[str, str, str]]:
+    return {(a.name, a.generation, a.status) for a in record.apps}
+
+
+def _note(ctx: Context, timeline: Timeline, after: StateRecord, running: dict[str, Running],
+          ended: list[Running], began: list[AppRecord]) -> None:
+    """Ended first (a cutover stops the old app before it starts the new one), then began."""
     at = stamp_now(ctx.stamp, ctx.clock)
-    running = {r.app: r for r in timeline.running()}
-    for app in ended:
-        timeline.append(Edge(kind="ended", how=ctx.why, at=at, app=app.name,
-                             generation=app.generation,
-                             software=_software_of(running.get(app.name), app)))
-        running.pop(app.name, None)
-        _mark_ended(timeline, app.name, app.generation, at)
+    for gone in ended:
+        timeline.append(Edge(kind="ended", how=ctx.why, at=at, app=gone.app,
+                             generation=gone.generation, software=gone.software))
+        running.pop(gone.app, None)
+        _mark_ended(timeline, gone.app, gone.generation, at)
     for app in began:
         software = software_for(ctx, app, after)
         digest = timeline.keep(software)
@@ -77,12 +86,6 @@ def _note(ctx: Context, timeline: Timeline, after: StateRecord, ended: list[AppR
                                     unit=app.service, began=at, alive=at)
         write_atomic(timeline.app_file(app.name), _app_file(software, digest, at))
     timeline.write_running(list(running.values()))
-
-
-def _software_of(running: Running | None, app: AppRecord) -> str | None:
-    if running is not None and running.generation == app.generation:
-        return running.software
-    return None
 
 
 def software_for(ctx: Context, app: AppRecord, record: StateRecord) -> Software:
@@ -101,7 +104,7 @@ def software_for(ctx: Context, app: AppRecord, record: StateRecord) -> Software:
         pip=installed_pip(Path(venv)) if venv else [], ros=ros,
         lpam=__version__, desired_source=desired.source if desired else None,
         desired_fingerprint=desired.fingerprint if desired else None,
-        vehicle=vehicle_id(ctx.layout.libpanda / "vin"))
+        vehicle=vehicle_id(ctx.layout.libpanda / "vin"), data=list(app.data))
 
 
 def installed_pip(venv: Path) -> list[str]:
@@ -159,7 +162,8 @@ def provenance_environment(ctx: Context, app: AppRecord) -> dict[str, str]:
             "LPAM_PROVENANCE": str(Timeline(ctx.layout).app_file(app.name))}
 
 
-def watch(layout: Layout, record: StateRecord, services: Services, at: Stamp) -> list[Edge]:
+def watch(layout: Layout, record: StateRecord, state: Callable[[str], UnitState],
+          at: Stamp) -> list[Edge]:
     """Look at what the timeline says runs, as the service manager sees it now, and write
     what happened since the last look: an interval of an earlier boot ended by a power
     cut (between its last `alive` and now), a unit its manager restarted (a crash), one
@@ -174,7 +178,7 @@ def watch(layout: Layout, record: StateRecord, services: Services, at: Stamp) ->
         running = {r.app: r for r in timeline.running()}
         gone: dict[tuple[str, str], str | None] = {}
         for app in list(running.values()):
-            seen = _look(app, record, services, at)
+            seen = _look(app, record, state, at)
             written.extend(seen.edges)
             if seen.still is None:
                 gone[(app.app, app.generation)] = running.pop(app.app).software
@@ -183,15 +187,15 @@ def watch(layout: Layout, record: StateRecord, services: Services, at: Stamp) ->
         for installed in record.apps:
             if installed.name in running or installed.status not in ACTIVE:
                 continue
-            state = services.state(installed.service) if installed.service else None
-            if state is not None and state.running:
+            now = state(installed.service) if installed.service else None
+            if now is not None and now.running:
                 software = gone.get((installed.name, installed.generation))
                 written.append(Edge(kind="began", how="manager", at=at, app=installed.name,
                                     generation=installed.generation, software=software,
-                                    note=state.describe()))
+                                    note=now.describe()))
                 running[installed.name] = Running(
                     app=installed.name, generation=installed.generation, software=software,
-                    unit=installed.service, pid=state.pid, restarts=state.restarts,
+                    unit=installed.service, pid=now.pid, restarts=now.restarts,
                     began=at, alive=at)
         jumped = _jumped(timeline.running(), at)
         if jumped is not None:
@@ -225,7 +229,8 @@ class _Seen:
     still: Running | None  # None: it ended
 
 
-def _look(app: Running, record: StateRecord, services: Services, at: Stamp) -> _Seen:
+def _look(app: Running, record: StateRecord, state_of: Callable[[str], UnitState],
+          at: Stamp) -> _Seen:
     if app.alive.boot != at.boot:
         return _Seen([_end(app, "power-lost", at)], None)
     installed = record.installed(app.app)
@@ -233,7 +238,7 @@ def _look(app: Running, record: StateRecord, services: Services, at: Stamp) -> _
             installed.status not in ACTIVE:  # its end was not seen: between alive and now
         return _Seen([_end(app, "exited", at, "the state record no longer shows it running")],
                      None)
-    state = services.state(app.unit) if app.unit else None
+    state = state_of(app.unit) if app.unit else None
     if state is None or not state.known:
         return _Seen([], app.model_copy(update={"alive": at}))  # the scripts' word stands
     coming_back = state.active == "activating"  # its manager restarts it now

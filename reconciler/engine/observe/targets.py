@@ -339,6 +339,7 @@ def _app_target(
         params=dict(spec.params), service=service,
         command=tuple(entry.command) if entry.command is not None else None,
         launch=entry.launch, user=user, resources=claims, scripts=scripts,
+        data=tuple(spec.data if spec.data is not None else entry.data),
         health=HealthTarget(
             settle_seconds=DEFAULT_SETTLE_SECONDS if health.settle_seconds is None
             else health.settle_seconds,
