@@ -90,7 +90,7 @@ def month(root: Path) -> dict[str, int]:
              *(timeline.folder / "software").glob("*")]
     return {"edges": len(timeline.read().edges),
             "disk": sum(p.stat().st_size for p in files if p.is_file()),
-            "published": len(published_timeline(Layout(root), "car-03"))}
+            "published": len(published_timeline(Layout(root), "car-03").content)}
 
 
 CATALOG = """\

@@ -27,7 +27,7 @@ from schemas.override import LocalOverride
 from schemas.plan import Plan
 from schemas.record import StateRecord
 from schemas.report import StatusReport
-from schemas.timeline import Edge, Software
+from schemas.timeline import Edge, Sidecar, Software
 
 DOCUMENTS: dict[str, type[BaseModel]] = {
     "desired-state.v2.schema.json": DesiredState,
@@ -42,6 +42,7 @@ DOCUMENTS: dict[str, type[BaseModel]] = {
     "status-report.v1.schema.json": StatusReport,
     "timeline-edge.v1.schema.json": Edge,
     "timeline-software.v1.schema.json": Software,
+    "provenance-sidecar.v1.schema.json": Sidecar,
 }
 FOLDER = Path(__file__).resolve().parent / "json"
 FROZEN: dict[str, str] = {

@@ -34,7 +34,7 @@ import os
 import shutil
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 from dulwich.errors import NotTreeError
@@ -358,21 +358,22 @@ class GitStore:
                 for name, commit in branches.items():
                     repo.refs[Ref(name.encode())] = ObjectID(commit.encode("ascii"))
 
-    def push_file(self, key: str, url: str, branch: str, name: str, content: bytes,
-                  message: str, *, when: int, parent: bool = True) -> str:
-        """Commit `content` as the only file `name` of `branch` and push it to `url`; the
-        new commit. With `parent`, the commit goes on top of the branch as the last fetch or
-        push saw it on origin; without, it starts the branch afresh (the server decides
-        whether it accepts that, see `Transport.push`). `when` is the commit's time (epoch
-        seconds, from the caller's clock). Nothing in the checkout moves: the commit is
-        made from objects alone."""
+    def push_files(self, key: str, url: str, branch: str, files: Mapping[str, bytes],
+                   message: str, *, when: int, parent: bool = True) -> str:
+        """Commit `files` (name → content) as the whole tree of `branch` and push it to
+        `url` in one connection; the new commit. With `parent`, the commit goes on top of
+        the branch as the last fetch or push saw it on origin; without, it starts the
+        branch afresh (the server decides whether it accepts that, see `Transport.push`).
+        `when` is the commit's time (epoch seconds, from the caller's clock). Nothing in
+        the checkout moves: the commit is made from objects alone."""
         self._sweep(key)
         with self._open(key) as repo:
             if repo is None:
                 raise GitError(f"{key} is not in the repository store")
-            blob = Blob.from_string(content)
+            blobs = {name: Blob.from_string(content) for name, content in files.items()}
             tree = Tree()
-            tree.add(name.encode("utf-8"), 0o100644, blob.id)
+            for name, blob in blobs.items():
+                tree.add(name.encode("utf-8"), 0o100644, blob.id)
             commit = Commit()
             commit.tree = tree.id
             tip = repo.refs.as_dict(Ref(b"refs/remotes/origin")).get(Ref(branch.encode()))
@@ -383,7 +384,7 @@ class GitStore:
             commit.commit_timezone = commit.author_timezone = 0
             commit.message = message.encode("utf-8")
             durable(repo)
-            for obj in (blob, tree, commit):
+            for obj in (*blobs.values(), tree, commit):
                 repo.object_store.add_object(obj)
             self._transport.push(repo, url, f"refs/heads/{branch}", commit.id.decode("ascii"))
             repo.refs[Ref(f"refs/remotes/origin/{branch}".encode())] = commit.id

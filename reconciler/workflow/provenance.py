@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import glob
+import hashlib
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -128,14 +129,17 @@ def _utc(moment: datetime) -> datetime:
 
 def desired_for(found: list[Interval], car: Known) -> tuple[str, list[str]]:
     """A pinned desired state that installs what ran in `found` (one generation per app),
-    and what it cannot pin. Refused (ValueError) when an app ran in two generations: the
-    caller asks for one moment instead."""
+    and what it cannot pin. Refused (ValueError) when an app ran two ways (generations,
+    or parameters) during the span: the caller asks for one moment instead."""
     by_app: dict[str, Interval] = {}
     for interval in found:
         seen = by_app.get(interval.app)
-        if seen is not None and seen.generation != interval.generation:
-            raise ValueError(f"{interval.app} ran in two generations ({seen.generation}, "
-                             f"{interval.generation}) during this span")
+        if seen is not None and (seen.generation, seen.software) != \
+                (interval.generation, interval.software):
+            what = "generations" if seen.generation != interval.generation else \
+                "sets of parameters (or recorded software)"
+            raise ValueError(f"{interval.app} ran in two {what} during this span "
+                             f"({seen.generation}, {interval.generation})")
         by_app[interval.app] = interval
     lines = ["version: 2", "repositories:"]
     apps: list[str] = []
@@ -322,21 +326,33 @@ def _stamped(side: Path, path: Path) -> bool:
 
 # --- for the fleet ---------------------------------------------------------------------
 
-TIMELINE_SUFFIX = ".timeline"  # the branch status/<vehicle>.timeline of the fleet repository
-TIMELINE_FILE = "timeline.json"
+TIMELINE_FILE = "timeline.json"  # beside status.json on the fleet's status/<vehicle>
 PUBLISHED_EDGES = 5000  # the newest edges published: a year of a car's drives, ~1.5 MB
 
 
-def published_timeline(layout: Layout, vehicle: str) -> bytes:
+@dataclass(frozen=True)
+class Publishable:
+    """What the car publishes of its timeline, and the mark that says it changed: the
+    edges but its clock edges (a clock set alone waits for the next push; it changes no
+    interval, only how sure their times are)."""
+
+    content: bytes
+    mark: str
+
+
+def published_timeline(layout: Layout, vehicle: str) -> Publishable:
     """What the car publishes of its timeline: its newest edges, and what ran in them."""
     timeline = Timeline(layout)
     edges = timeline.read().edges[-PUBLISHED_EDGES:]
     digests = sorted({e.software for e in edges if e.software})
     software = {d: s for d in digests if (s := timeline.software(d)) is not None}
-    data = {"version": 1, "vehicle": vehicle,
-            "edges": [e.model_dump(mode="json", exclude_none=True) for e in edges],
+    lines = [e.model_dump(mode="json", exclude_none=True) for e in edges]
+    data = {"version": 1, "vehicle": vehicle, "edges": lines,
             "software": {d: s.model_dump(mode="json") for d, s in software.items()}}
-    return (json.dumps(data, sort_keys=True, separators=(",", ":")) + "\n").encode("utf-8")
+    mark = json.dumps([line for line in lines if line["kind"] != "clock"], sort_keys=True)
+    return Publishable(
+        (json.dumps(data, sort_keys=True, separators=(",", ":")) + "\n").encode("utf-8"),
+        hashlib.sha256(mark.encode("utf-8")).hexdigest())
 
 
 def known_published(content: bytes) -> Known:
@@ -363,8 +379,7 @@ def from_fleet(repo: Path, vehicle: str | None) -> Known:
 
     _, files = clone.published(repo, branch="main", prefixes=(
         b"refs/remotes/origin/status/", b"refs/heads/status/"), file=TIMELINE_FILE.encode())
-    cars = {f.name.removesuffix(TIMELINE_SUFFIX): f for f in reversed(files)
-            if f.name.endswith(TIMELINE_SUFFIX)}
+    cars = {f.name: f for f in reversed(files)}  # the remote's branch first
     if vehicle is None and len(cars) == 1:
         vehicle = next(iter(cars))
     if vehicle is None or vehicle not in cars:

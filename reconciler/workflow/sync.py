@@ -27,7 +27,6 @@ terminal), the change is the fleet's.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import time
 from dataclasses import dataclass, replace
@@ -56,12 +55,7 @@ from reconciler.workflow.followed import Followed as Followed
 from reconciler.workflow.followed import desired_of as _desired
 from reconciler.workflow.followed import followed, read_status, vehicle_id
 from reconciler.workflow.machine import Machine
-from reconciler.workflow.provenance import (
-    TIMELINE_FILE,
-    TIMELINE_SUFFIX,
-    published_timeline,
-    stamp_finished,
-)
+from reconciler.workflow.provenance import TIMELINE_FILE, published_timeline, stamp_finished
 from reconciler.workflow.source import SOURCE_KEY, DesiredStateSource
 from reconciler.workflow.source import join_url as join_url
 from schemas.agent import (
@@ -252,7 +246,13 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     local. The push is made under the apply lock, as every write to the store is (a kill
     mid-write leaves a lock file only the lock's holder may sweep); when an apply holds it
     longer than LOCK_TIMEOUT, the status waits for the next pass."""
-    from reconciler.core.publication import due, fingerprint, last_change, status_file
+    from reconciler.core.publication import (
+        STATUS_FILE,
+        due,
+        fingerprint,
+        last_change,
+        status_file,
+    )
     from reconciler.engine.execution.lock import apply_lock
     from reconciler.engine.records.state import read_record
     from reconciler.report import status as machine_status
@@ -265,7 +265,11 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     now = machine.clock()
     local = read_override(machine.layout)
     change = last_change(read_record(machine.layout).history)
-    mark = fingerprint(own, every, local, change)
+    # the timeline goes beside the status, in the same commit and push: a change of it
+    # alone (a crash the manager restarted) is a change worth publishing
+    timeline = published_timeline(machine.layout, own.vehicle)
+    mark = hashlib.sha256((fingerprint(own, every, local, change) + timeline.mark).encode()
+                          ).hexdigest()
     why = due(own.publication, mark, now, heartbeat=config.heartbeat_seconds)
     if why is None:
         return
@@ -275,10 +279,10 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
     try:
         with apply_lock(machine.layout, timeout=LOCK_TIMEOUT) as lock:  # a push is a write
             lock.note("publishing this car's status")
-            _push(machine, config, branch, status_file(own, every, local, change),
-                  when=int(now.timestamp()), report=report)
-            _push_timeline(machine, config, own.vehicle, when=int(now.timestamp()),
-                           report=report)
+            _push(machine, config, branch, {
+                STATUS_FILE: status_file(own, every, local, change),
+                TIMELINE_FILE: timeline.content},
+                when=int(now.timestamp()), report=report)
         report(Progress(f"status published to {branch} ({why})"))
     except PushRefusedError as exc:
         result, reason = "refused", exc.message
@@ -296,44 +300,26 @@ def publish(machine: Machine, config: AgentConfig, report: Report) -> None:
                  own.model_copy(update={"publication": done}).model_dump_json(indent=2) + "\n")
 
 
-def _push_timeline(machine: Machine, config: AgentConfig, vehicle: str, *, when: int,
-                   report: Report) -> None:
-    """The car's timeline (its recent edges and what ran in them, bounded) on the branch
-    `status/<vehicle>.timeline`, when it changed since the last push: `lpam provenance`
-    in a clone of the fleet repository answers for this car's files without the car."""
-    layout = machine.layout
-    content = published_timeline(layout, vehicle)
-    mark = layout.var / "timeline" / "published"
-    digest = hashlib.sha256(content).hexdigest()
-    with contextlib.suppress(OSError):
-        if mark.read_text(encoding="ascii").strip() == digest:
-            return
-    _push(machine, config, STATUS_PREFIX + vehicle + TIMELINE_SUFFIX, content, when=when,
-          report=report, file=TIMELINE_FILE)
-    write_atomic(mark, digest + "\n")
-
-
-def _push(machine: Machine, config: AgentConfig, branch: str, content: bytes, *, when: int,
-          report: Report, file: str | None = None) -> None:
+def _push(machine: Machine, config: AgentConfig, branch: str, files: dict[str, bytes], *,
+          when: int, report: Report) -> None:
     """One status commit on `branch`, on top of its tip while it holds fewer than `HISTORY`
     commits, else starting it afresh. A server that refuses to rewrite the branch (git's
     receive.denyNonFastForwards, a protected branch) gets it on top after all: a status
     published with a growing history is better than none."""
-    from reconciler.core.publication import HISTORY, STATUS_FILE, keeps_parent
+    from reconciler.core.publication import HISTORY, keeps_parent
 
     store = machine.store()
     length = store.history_length(SOURCE_KEY, branch, limit=HISTORY)
     keep = keeps_parent(length)
     vehicle = branch.removeprefix(STATUS_PREFIX)
-    name = file or STATUS_FILE
     try:
-        store.push_file(SOURCE_KEY, config.source.url, branch, name, content,
-                        f"status of {vehicle}", when=when, parent=keep)
+        store.push_files(SOURCE_KEY, config.source.url, branch, files,
+                         f"status of {vehicle}", when=when, parent=keep)
     except PushRefusedError:
         if keep or length == 0:
             raise
-        store.push_file(SOURCE_KEY, config.source.url, branch, name, content,
-                        f"status of {vehicle}", when=when, parent=True)
+        store.push_files(SOURCE_KEY, config.source.url, branch, files,
+                         f"status of {vehicle}", when=when, parent=True)
         report(Note(f"the fleet repository does not let this car rewrite {branch}, so its "
                     f"history grows past {HISTORY} commits: allow non-fast-forward pushes "
                     "to status/* (see the README's fleet section)"))

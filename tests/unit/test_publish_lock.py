@@ -39,10 +39,10 @@ def test_the_status_push_is_made_holding_the_apply_lock(
     monkeypatch.setattr(sync, "_push", lambda m, config, branch, *a, **k: held.append(
         (branch, holder(m.layout))))
     sync.publish(machine, CONFIG, report=lambda event: None)
-    # the status, then the timeline (issue 33), each under the lock; what another lpam
-    # waiting for the lock is told
-    assert [branch for branch, _ in held] == ["status/rav4-07", "status/rav4-07.timeline"]
-    assert all(str(who).endswith(": publishing this car's status") for _, who in held)
+    # the status and the timeline (issue 33), in one push; what another lpam waiting for
+    # the lock is told
+    assert len(held) == 1 and held[0][0] == "status/rav4-07"
+    assert str(held[0][1]).endswith(": publishing this car's status")
     published = read_agent_status(machine.layout)
     assert published is not None and published.publication is not None
     assert published.publication.result == "pushed"
