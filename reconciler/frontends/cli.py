@@ -886,6 +886,9 @@ def cmd_provenance(args: argparse.Namespace, layout: Layout) -> int:
     if car.unreadable:
         print(f"note: {car.unreadable} line(s) of the timeline could not be read (torn by "
               "a power cut, or written by a newer lpam)", file=sys.stderr)
+    large = Timeline(layout).size_warning() if args.repo is None else None
+    if large:
+        print(f"note: {large}", file=sys.stderr)
     return EXIT_OK
 
 

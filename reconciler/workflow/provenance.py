@@ -136,10 +136,13 @@ def desired_for(found: list[Interval], car: Known) -> tuple[str, list[str]]:
         seen = by_app.get(interval.app)
         if seen is not None and (seen.generation, seen.software) != \
                 (interval.generation, interval.software):
-            what = "generations" if seen.generation != interval.generation else \
-                "sets of parameters (or recorded software)"
-            raise ValueError(f"{interval.app} ran in two {what} during this span "
-                             f"({seen.generation}, {interval.generation})")
+            if seen.generation != interval.generation:
+                two = f"generations ({seen.generation}, {interval.generation})"
+            else:
+                two = "ways (parameters " + ", ".join(
+                    getattr(car.software.get(i.software or ""), "params_digest", "unknown")
+                    for i in (seen, interval)) + f"; generation {seen.generation})"
+            raise ValueError(f"{interval.app} ran two {two} during this span")
         by_app[interval.app] = interval
     lines = ["version: 2", "repositories:"]
     apps: list[str] = []

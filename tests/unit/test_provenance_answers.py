@@ -67,7 +67,7 @@ def test_a_file_across_a_change_of_parameters_is_not_one_software(
         car: prov.Known, tmp_path: Path) -> None:
     answer = prov.of_file(csv(tmp_path / "d.csv", 50, 150), car)
     assert {car.software[i.software or ""].params["GAIN"] for i in answer.found} == {"1", "2"}
-    with pytest.raises(ValueError, match="two sets of parameters"):
+    with pytest.raises(ValueError, match="ran two ways \\(parameters"):
         prov.desired_for(answer.found, car)
 
 
