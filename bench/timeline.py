@@ -5,7 +5,8 @@ Size: a month of a typical car written through the real writer (engine/records/t
 — 100 drives, each a boot that closes the last drive's two apps as power-lost, starts them
 again and sees the clock set by GPS, and one controller switch a day — with software as a
 real app has it (60 pip packages). Reported: bytes on disk (open file, gzipped segments,
-the software files) and what the car publishes (status/<vehicle>.timeline).
+the software files), what the car publishes (timeline.json beside its status) and what a
+push that carries it changed sends (git sends a new blob zlib-compressed, whole).
 
 Apply: a switch between two scriptless apps under a real supervisord, in-process
 (reconciler.workflow.applying.apply_file), in alternating rounds with the timeline on and
@@ -25,6 +26,7 @@ import statistics
 import sys
 import tempfile
 import time
+import zlib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from datetime import datetime, timedelta, timezone
@@ -88,9 +90,10 @@ def month(root: Path) -> dict[str, int]:
         timeline.append(Edge(kind="clock", how="clock", at=at(90), since=at(25, False)))
     files = [timeline.path, *timeline.segments.glob("*"),
              *(timeline.folder / "software").glob("*")]
+    published = published_timeline(Layout(root), "car-03").content
     return {"edges": len(timeline.read().edges),
             "disk": sum(p.stat().st_size for p in files if p.is_file()),
-            "published": len(published_timeline(Layout(root), "car-03").content)}
+            "published": len(published), "sent": len(zlib.compress(published))}
 
 
 CATALOG = """\
@@ -176,7 +179,10 @@ def main(argv: list[str] | None = None) -> int:
     print("| Timeline of one month (100 drives, a switch a day) | |\n|---|---:|")
     print(f"| edges | {sizes['edges']} |")
     print(f"| on disk (open file, segments, software) | {sizes['disk'] / 1024:.1f} KiB |")
-    print(f"| published (status/<vehicle>.timeline) | {sizes['published'] / 1024:.1f} KiB |")
+    print(f"| published (timeline.json beside status.json) | {sizes['published'] / 1024:.1f} "
+          "KiB |")
+    print(f"| sent by a push that carries it changed (zlib, as git sends a blob) | "
+          f"{sizes['sent'] / 1024:.1f} KiB |")
     print()
     print("| A switch between two apps (supervisord) | with the timeline | without | ratio |")
     print("|---|---:|---:|---:|")
