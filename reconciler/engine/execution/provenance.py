@@ -172,6 +172,9 @@ def watch(layout: Layout, record: StateRecord, state: Callable[[str], UnitState]
     so the next boot closes what a power cut left open. Returns the edges written."""
     timeline = Timeline(layout)
     written: list[Edge] = []
+    if not timeline.running_path.exists() and not any(a.status in ACTIVE
+                                                      for a in record.apps):
+        return written  # nothing runs, nothing ran: a look writes nothing (a bare root)
     with timeline.locked() as mine:
         if not mine:
             return written  # another look is writing now; the next one sees it
