@@ -87,7 +87,9 @@ def _known(lines: Lines, software: dict[str, Software]) -> Known:
 
 
 def of_file(path: Path, car: Known) -> Answer:
-    """What ran while `path` was recorded."""
+    """What ran while `path` was recorded; ConfigError when there is no such file."""
+    if not path.exists():
+        raise ConfigError("no such file", path=path, hint="give the path of a data file")
     seen = span(path)
     if seen.vehicle and car.vehicle and seen.vehicle != car.vehicle:
         return Answer(path, seen, "other vehicle", said=f"recorded by vehicle "

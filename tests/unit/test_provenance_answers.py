@@ -4,11 +4,13 @@ file of another car, a file with no times, a desired state that cannot be one so
 
 from __future__ import annotations
 
+import os
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
 
+from reconciler.base.errors import ConfigError
 from reconciler.base.layout import Layout
 from reconciler.core.documents import load_desired
 from reconciler.engine.records.timeline import Timeline
@@ -76,7 +78,11 @@ def test_what_cannot_be_answered_is_said(car: prov.Known, tmp_path: Path) -> Non
     assert before.verdict == "before lpam" and not before.found
     other = prov.of_file(csv(tmp_path / "d_JTMW1RFV0KD000001_CAN_Messages.csv", 10), car)
     assert other.verdict == "other vehicle" and VIN in other.said
-    assert prov.of_file(tmp_path / "missing.bin", car).verdict == "no times"
+    (tmp_path / "notes.bin").write_bytes(b"\x00\x01")
+    os.utime(tmp_path / "notes.bin", (0, 0))  # its only time: 1970
+    assert prov.of_file(tmp_path / "notes.bin", car).verdict == "before lpam"
+    with pytest.raises(ConfigError, match="no such file"):
+        prov.of_file(tmp_path / "missing.bin", car)
 
 
 def _written(path: Path, text: str) -> Path:
