@@ -34,16 +34,22 @@ while True:
     time.sleep(0.3)
 """
 
+# A health window of 1 s, not the default 10 s: each apply, start and restart waits it out
+# for every app, and what this file asserts (which app is operated, which pids change,
+# what is shown) does not depend on its length.
 CATALOG = """\
 apps:
   - name: controller
     command: [python3, -u, main.py]
+    health: {settle_seconds: 1}
     properties:
       - owns_panda: true
   - name: recorder
     command: [python3, -u, main.py]
+    health: {settle_seconds: 1}
   - name: tracker
     command: [python3, -u, main.py]
+    health: {settle_seconds: 1}
 """
 
 
