@@ -208,7 +208,8 @@ def power_cut(car: Car) -> None:
 
 
 def drive(car: Car, name: str) -> None:
-    (car.root / "drive").write_text(name + "\n")
+    (car.root / "drive.new").write_text(name + "\n")  # whole, never read half-written
+    os.replace(car.root / "drive.new", car.root / "drive")
     time.sleep(0.3)  # the recorder's next row goes to the new file
 
 
