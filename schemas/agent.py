@@ -17,16 +17,29 @@ exists, else `desired-state.yaml` at its root.
 The agent status is a document lpam writes, so it changes only through a version and a
 migration (migrations/agent_status_v1_to_v2.py): version 2 names the result `deferred`,
 the file the vehicle follows (`follows`) and its last publication (`publication`).
+`rollout` (issue 34), where the car stands in the rollout its desired state declares, is
+optional and written only when there is one: a car with no rollout writes the file it
+wrote before, which an lpam from before rollouts still reads.
 """
 
 from __future__ import annotations
 
 import re
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictStr, ValidationInfo, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    StrictStr,
+    ValidationInfo,
+    field_validator,
+    model_serializer,
+)
 
 from schemas.names import check_ref, check_url
+from schemas.rollout import RolloutState
 
 CURRENT_VERSION = 1
 _VEHICLE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,62}$")
@@ -173,6 +186,17 @@ class AgentStatus(BaseModel):
     last_attempt: Attempt | None = None
     passes: list[Attempt] = Field(default_factory=list)
     publication: Publication | None = None
+    rollout: RolloutState | None = Field(
+        default=None, description="where this car stands in the rollout of the revision it "
+        "follows (None: its desired state declares no rollout)")
+
+    @model_serializer(mode="wrap")
+    def _without_rollout(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """No `rollout: null`: a car with no rollout writes what it wrote before."""
+        body = handler(self)
+        if isinstance(body, dict) and body.get("rollout", 0) is None:
+            del body["rollout"]
+        return body
 
     def failed(self, revision: str) -> bool:
         """Whether `revision` was tried and failed (so it is not tried again)."""

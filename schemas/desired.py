@@ -48,6 +48,7 @@ from schemas.names import (
     check_url,
     repository_key,
 )
+from schemas.rollout import RolloutSpec
 from schemas.service import Health, check_user
 from schemas.vehicle import GatesSpec, VehicleSpec
 
@@ -235,6 +236,9 @@ class DesiredState(BaseModel):
                                  description="how lpam reads the vehicle's speed")
     gates: GatesSpec | None = Field(default=None, description="when a cutover may happen; "
                                     "absent: at any moment")
+    rollout: RolloutSpec | None = Field(
+        default=None, description="for a fleet: which cars take a new revision first, and "
+        "the proof the next wave waits for; absent: every car at once")
 
     @field_validator("mirrors")
     @classmethod

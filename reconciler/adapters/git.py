@@ -256,24 +256,26 @@ class GitStore:
     # -- writes -------------------------------------------------------------------------
 
     def fetch(self, key: str, url: str, *, skip: str = "", want: str | None = None,
-              ) -> Fetched:
+              keep: tuple[str, ...] = ()) -> Fetched:
         """Bring `key` up to date with `url`, cloning it when absent or when the URL changed:
         the commit `want` alone (depth 1: an app's pinned tree, not its years of history),
         or every branch and tag with their history (the fleet's repository, whose history
         its signatures and status need); refs under `skip` (the fleet's status branches)
-        are not fetched. What came over the wire."""
+        are not fetched, but those whose names below `skip` match a glob of `keep`. What
+        came over the wire."""
         self._transport.check(url, "fetch")
         dest = self._checkout_dir(key)
         self._sweep(key)
         current = self.origin_url(key) if dest.exists() else None
         if current == url:
             with Repo(str(dest)) as repo:
-                done = self._transport.fetch_into(repo, url, skip=skip, want=want)
+                done = self._transport.fetch_into(repo, url, skip=skip, want=want,
+                                                  keep=keep)
             integrity.remember(dest)
             return done
         if dest.exists():
             self._refuse_edits(key, "cannot switch it to " + redact(url))
-        fresh, done = self._clone(key, url, skip=skip, want=want)
+        fresh, done = self._clone(key, url, skip=skip, want=want, keep=keep)
         try:
             if dest.exists():  # rename(2) may replace the empty directory _temp made
                 os.rename(dest, self._temp(key, "old"))
@@ -389,6 +391,21 @@ class GitStore:
             self._transport.push(repo, url, f"refs/heads/{branch}", commit.id.decode("ascii"))
             repo.refs[Ref(f"refs/remotes/origin/{branch}".encode())] = commit.id
             return commit.id.decode("ascii")
+
+    def ancestors(self, key: str, commit: str, *, limit: int) -> list[str]:
+        """`commit` and its first parents, newest first, at most `limit` (fewer where the
+        store's history ends): what a car's agent compares a new revision with to tell a
+        revert from a change."""
+        found: list[str] = []
+        with self._open(key) as repo:
+            sha: str | None = commit
+            while repo is not None and sha is not None and len(found) < limit:
+                current = _commit(repo, sha)
+                if current is None:
+                    break
+                found.append(sha)
+                sha = current.parents[0].decode("ascii") if current.parents else None
+        return found
 
     def history_length(self, key: str, branch: str, *, limit: int) -> int:
         """How many commits origin's `branch` holds as this store last saw it, counted along
@@ -544,13 +561,14 @@ class GitStore:
         return path
 
     def _clone(self, key: str, url: str, *, skip: str = "", want: str | None = None,
-               ) -> tuple[Path, Fetched]:
+               keep: tuple[str, ...] = ()) -> tuple[Path, Fetched]:
         """A new clone of `url` (nothing checked out) in a temporary sibling of the key's
         checkout, for the caller to rename into place; removed again if the fetch fails."""
         fresh = self._temp(key, "clone")
         try:
             with _init(fresh, url) as repo:
-                done = self._transport.fetch_into(repo, url, skip=skip, want=want)
+                done = self._transport.fetch_into(repo, url, skip=skip, want=want,
+                                                  keep=keep)
             integrity.remember(fresh)
         except BaseException:
             shutil.rmtree(fresh, ignore_errors=True)

@@ -95,7 +95,7 @@ class Transport:
         return RemoteRefs(url=url, refs=refs, default_branch=default)
 
     def fetch_into(self, repo: Repo, url: str, *, mirror: bool = True, skip: str = "",
-                   want: str | None = None) -> Fetched:
+                   want: str | None = None, keep: tuple[str, ...] = ()) -> Fetched:
         """Fetch the commit `want` alone (depth 1), or every branch and tag (but those
         under `skip`) with their history; then mirror the branches and tags whose commits
         the store holds as origin's refs and local tags. What came, in bytes.
@@ -111,7 +111,7 @@ class Transport:
         """
         self.check(url, "fetch")
         request = {"op": "fetch", "url": url, "repo": repo.path, "skip": skip,
-                   "want": want or ""}
+                   "want": want or "", "keep": "\n".join(keep)}
         answer = self._ask(request, url, "fetch")
         refs: dict[str, str] = answer["refs"]
         peeled: dict[str, str] = answer.get("peeled", {})
@@ -125,11 +125,11 @@ class Transport:
         if want is not None:
             fetched = _held(repo, fetched, peeled)
         heads, tags = _under(fetched, b"refs/heads/"), _under(fetched, b"refs/tags/")
-        if skip.startswith("refs/heads/"):  # what lpam keeps of them itself stays
-            kept = skip.removeprefix("refs/heads/").encode("utf-8")
-            heads.update({Ref(name): sha for name, sha in
-                          repo.refs.as_dict(Ref(b"refs/remotes/origin")).items()
-                          if name.startswith(kept)})
+        if skip.startswith("refs/heads/"):  # what lpam keeps of them itself stays, but
+            kept = skip.removeprefix("refs/heads/").encode("utf-8")  # what came is newer
+            for name, sha in repo.refs.as_dict(Ref(b"refs/remotes/origin")).items():
+                if name.startswith(kept):
+                    heads.setdefault(Ref(name), sha)
         done = Fetched(url=url, bytes=int(answer.get("bytes", 0)),
                        shallow=bool(answer.get("shallow")))
         if not mirror:

@@ -37,6 +37,7 @@ import tempfile
 import threading
 from collections.abc import Callable, Iterator, Mapping
 from collections.abc import Set as AbstractSet
+from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
@@ -92,7 +93,8 @@ def ls_remote(url: str) -> dict[str, Any]:
     return {"refs": refs, "head": head.decode("utf-8", "replace") if head else None}
 
 
-def fetch(url: str, repo_path: str, skip: str = "", want: str = "") -> dict[str, Any]:
+def fetch(url: str, repo_path: str, skip: str = "", want: str = "", keep: str = "",
+          ) -> dict[str, Any]:
     """Fetch into `repo_path` (refs stay untouched; the parent writes them) either the
     commit `want` alone — its tree, nothing older (depth 1) — or, without `want`, every
     branch and tag with their history (but those under `skip`, such as the fleet's status
@@ -104,9 +106,18 @@ def fetch(url: str, repo_path: str, skip: str = "", want: str = "") -> dict[str,
     protocol v2 servers (GitHub, git daemon) and v0 servers with
     uploadpack.allowReachableSHA1InWant grant. An older server refuses a commit it does not
     advertise as a tip: then the tips are fetched with their whole history (a shallow store
-    deepened to full), the one way such a server gives an older commit."""
+    deepened to full), the one way such a server gives an older commit.
+
+    `keep`: globs, one per line, of names under `skip` fetched all the same (a car in a
+    rollout reads the status branches of the cars in the waves before its own, not the
+    whole fleet's)."""
     client, path = client_for(url)
     skipped = skip.encode("utf-8")
+    kept = [glob for glob in keep.splitlines() if glob]
+
+    def passed(name: str) -> bool:
+        return not (skip and name.startswith(skip)) or \
+            any(fnmatchcase(name[len(skip):], glob) for glob in kept)
     with Repo(repo_path) as repo:
         durable(repo)
         target = ObjectID(want.encode("ascii")) if want else None
@@ -114,7 +125,8 @@ def fetch(url: str, repo_path: str, skip: str = "", want: str = "") -> dict[str,
         def tips(refs: Mapping[Ref, ObjectID | None], depth: int | None = None,
                  ) -> list[ObjectID]:
             found = [sha for name, sha in refs.items() if sha is not None and _is_tip(name)
-                     and not (skipped and name.startswith(skipped))]
+                     and (not (skipped and name.startswith(skipped))
+                          or passed(name.decode("utf-8", "replace")))]
             return [sha for sha in dict.fromkeys(found) if deepen or sha not in repo.object_store]
 
         def commit(refs: Mapping[Ref, ObjectID | None], depth: int | None = None,
@@ -136,7 +148,7 @@ def fetch(url: str, repo_path: str, skip: str = "", want: str = "") -> dict[str,
         shallow = target is not None and target in repo.get_shallow()
     advertised = _text_refs(result.refs)
     refs = {name: sha for name, sha in advertised.items()
-            if not name.endswith(_PEELED.decode()) and not (skip and name.startswith(skip))}
+            if not name.endswith(_PEELED.decode()) and passed(name)}
     peeled = {name[: -len(_PEELED)]: sha for name, sha in advertised.items()
               if name.endswith(_PEELED.decode())}
     if shallow and not peeled and any(name.startswith("refs/tags/") for name in refs):
@@ -393,7 +405,7 @@ def answer(request: dict[str, str]) -> dict[str, Any]:
         if request["op"] == "push":
             return push(request["url"], request["repo"], request["ref"], request["new"])
         return fetch(request["url"], request["repo"], request.get("skip", ""),
-                     request.get("want", ""))
+                     request.get("want", ""), request.get("keep", ""))
     except _transport_errors() as exc:
         if request["op"] == "push" and refusal(exc):
             return {"error": reason(exc, request["url"]), "refused": True}

@@ -23,7 +23,10 @@ What counts as a change (`essentials`), exactly:
   edits.
 - the last change the car's history records (`last_change`): when, what it made current,
   how it ended and who asked for it — counted only once there is one, so a car with no
-  history publishes nothing new for it.
+  history publishes nothing new for it;
+- where the car stands in a rollout (issue 34): the revision, its wave and stage, and why
+  it was halted or rolled back — not how long it has waited or run, so `proven` is news
+  and the seconds before it are not (counted only with a rollout).
 
 Not counted: the times of the passes and their list (every pass adds one), and the last
 publication itself.
@@ -127,6 +130,11 @@ def essentials(status: AgentStatus, apps: Sequence[PublishedApp],
     several = _several(apps)
     if several is not None:
         found["apps"] = several
+    if status.rollout is not None:  # its stage, not the seconds it has run or waited
+        state = status.rollout
+        found["rollout"] = {"revision": state.revision, "wave": state.wave,
+                            "stage": state.stage, "reason": state.reason
+                            if state.stage in ("halted", "rolled back") else None}
     if change is not None:
         found["last_change"] = change.model_dump(mode="json")
     return found

@@ -145,7 +145,7 @@ class BundleFile:
     live = False  # a file: never "offline", whatever it holds is all there is
 
     def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
-              lock_timeout: float) -> str | None:
+              lock_timeout: float, keep: tuple[str, ...] = ()) -> str | None:
         unpack(machine, self.path, config.source.url, config.source.branch,
                lock_timeout=lock_timeout)
         return f"from the bundle {self.path}"

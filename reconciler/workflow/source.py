@@ -41,10 +41,11 @@ class DesiredStateSource(Protocol):
         ...
 
     def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
-              lock_timeout: float) -> str | None:
+              lock_timeout: float, keep: tuple[str, ...] = ()) -> str | None:
         """Bring `config.source`'s branch (and for a bundle, what it pins) into the store,
-        waiting at most `lock_timeout` s for the apply lock; why the pass is not online
-        (None: it fetched from the network)."""
+        waiting at most `lock_timeout` s for the apply lock, with the status branches of
+        the cars matching `keep` (workflow/waves.py); why the pass is not online (None: it
+        fetched from the network)."""
         ...
 
 

@@ -46,6 +46,7 @@ from reconciler.base.errors import (
     TrustError,
 )
 from reconciler.engine.records.state import read_override
+from reconciler.workflow import waves
 from reconciler.workflow.actor import agent
 from reconciler.workflow.applying import ApplyOptions, apply
 from reconciler.workflow.bundle import BundleFile
@@ -72,6 +73,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from schemas.override import LocalOverride
+    from schemas.rollout import RolloutState
 
 # Imported inside functions: signatures, publication, targets and planning load only on the
 # sync step that uses them (0-30 modules each, no heavy library); a small start-up gain.
@@ -131,9 +133,10 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     status = read_status(machine)
     vehicle = vehicle_id(machine, config)
     source: DesiredStateSource = Remote() if bundle is None else BundleFile(bundle)
+    watch = waves.watch(machine, config, vehicle, status)
     try:
         offline = source.bring(machine, config, report,
-                               lock_timeout=options.lock_wait(FETCH_LOCK_TIMEOUT))
+                               lock_timeout=options.lock_wait(FETCH_LOCK_TIMEOUT), keep=watch)
     except StoreDamagedError as exc:
         if not source.live:
             raise
@@ -165,13 +168,44 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
         report(Note(f"revision {revision[:12]} failed before; waiting for a new one"))
         return _record(machine, status, Synced("nothing to do", revision,
                                                "this revision failed before"))
+    rollout = waves.rollout_of(machine, config, vehicle, revision)
+    if rollout is not None and revision != status.applied_revision:
+        wait = waves.held(machine, config, rollout, vehicle, revision, status,
+                          fetched=watch if offline is None else (), now=machine.clock())
+        if wait is not None:
+            return _record(machine, status.model_copy(update={"rollout": wait}),
+                           _staged(machine, config, vehicle, revision, wait, report))
     chosen = lambda: _desired(machine, config, vehicle, revision,  # noqa: E731
                               keep=frozenset(filter(None, [status.applied_revision])))
     done = _applied(machine, chosen, revision, options=replace(options, by=agent(revision)),
                     report=report, local=offline is not None)
     if done.result in ("applied", "nothing to do"):
         status = status.model_copy(update={"applied_revision": revision})
+    status = status.model_copy(update={"rollout": waves.after(
+        rollout, vehicle, revision, done.result, done.reason, status.rollout,
+        running=_running(machine), now=machine.clock())})
     return _record(machine, status, done)
+
+
+def _staged(machine: Machine, config: AgentConfig, vehicle: str, revision: str,
+            wait: RolloutState, report: Report) -> Synced:
+    """A car whose wave's turn has not come: the revision is staged (the commits it pins
+    fetched), so that its turn applies with no network; the pass is deferred, as by a
+    closed update gate, with the wave's reason."""
+    reason = wait.reason or wait.stage
+    report(Note(f"revision {revision[:12]} waits: {reason}"))
+    staged = _fetch_pins(machine, config, vehicle, revision, report)
+    if staged.result != "fetched":
+        reason += f" (not staged: {staged.reason})"
+    return Synced("deferred", revision, reason)
+
+
+def _running(machine: Machine) -> bool:
+    """Whether every installed app runs (a rollout's proof needs it)."""
+    from reconciler.report import status as machine_status
+
+    seen = machine_status.report(machine.layout, state=machine.services.state, listed=False)
+    return all(app.running for app in seen.installed)
 
 
 def _applied(machine: Machine, choose: Callable[[], Followed], revision: str | None, *,
@@ -331,7 +365,7 @@ class Remote:
     live = True
 
     def bring(self, machine: Machine, config: AgentConfig, report: Report, *,
-              lock_timeout: float) -> str | None:
+              lock_timeout: float, keep: tuple[str, ...] = ()) -> str | None:
         """Fetch the source under the lock (a fetch is a write); the reason when offline."""
         from reconciler.engine.execution.lock import apply_lock
         from reconciler.engine.observe.targets import sound_copy
@@ -341,9 +375,10 @@ class Remote:
                 store = machine.store()
                 sound_copy(store, SOURCE_KEY, config.source.url, renew=True,
                            notice=lambda text: report(Note(text)))
-                # the other cars' status branches are not this car's business
+                # the other cars' status branches are not this car's business, but
+                # for those of the waves before its own while it waits (workflow/waves.py)
                 store.fetch(SOURCE_KEY, config.source.url,
-                            skip="refs/heads/" + STATUS_PREFIX)
+                            skip="refs/heads/" + STATUS_PREFIX, keep=keep)
         except StoreDamagedError:
             raise  # its copy cannot be read: `_pass` records the pass as offline
         except GitError as exc:

@@ -23,13 +23,15 @@ def fingerprint(desired: DesiredState | None) -> str:
     """A desired state's content, written in the oldest version of the document that can
     say it: version 1 for at most one app, version 2 for more. One form, so that a hold
     recorded by any lpam since version 1 (an operator's stop, a rollback) ends only
-    because the desired state changed, never because lpam was upgraded."""
+    because the desired state changed, never because lpam was upgraded. A `rollout:`
+    says which cars take a revision first, not what runs: it is left out, so a hold
+    outlives an edit of the waves (and fingerprints from before rollouts stay)."""
     if desired is None:
         text = ""
     elif len(desired.apps) > 1:
-        text = desired.model_dump_json()
+        text = desired.model_dump_json(exclude={"rollout"})
     else:
-        dumped = desired.model_dump(mode="json")
+        dumped = desired.model_dump(mode="json", exclude={"rollout"})
         shaped = {("app" if k == "apps" else k): (v[0] if v else None) if k == "apps" else v
                   for k, v in dumped.items()}
         shaped["version"] = 1
