@@ -153,6 +153,12 @@ def _agent(report: StatusReport) -> list[str]:
         why = f": {last.reason}" if last.reason else ""
         line += f"; last pass: {last.result} at {last.time}{why}"
     lines = [printable(line)]
+    wave = agent.rollout
+    if wave is not None:  # the waves of the fleet's rollout (issue 34): where this car stands
+        place = f"wave {wave.wave}" if wave.wave is not None else "in no wave"
+        lines.append(printable(
+            f"Rollout of {short(wave.revision)}: {place}, {wave.stage} since {wave.since}"
+            + (f": {wave.reason}" if wave.reason else "")))
     local = report.override
     if isinstance(local, Unreadable):
         lines.append(f"Local override: its file is unreadable: {printable(local.error)}")

@@ -19,10 +19,15 @@ from pathlib import Path
 from typing import Any
 
 from reconciler.adapters import clone
-from reconciler.base.errors import ConfigError
+from reconciler.base.errors import ConfigError, LpamError
 from reconciler.base.text import columns, printable
 from reconciler.core.publication import STATUS_FILE, read_status_file
+from reconciler.report.fleetview import State
 from schemas.fleet import CarStatus
+from schemas.rollout import RolloutSpec
+
+# Imported inside functions: the document readers (~13 modules) load only when a rollout is
+# read from the fleet's desired state; `lpam fleet status` without one needs none.
 
 PREFIXES = (b"refs/remotes/origin/status/", b"refs/heads/status/")
 
@@ -41,6 +46,8 @@ class Vehicle:
     override: str | None = None  # a local override in force: "phone since <time>"
     apps: tuple[dict[str, Any], ...] = ()  # every installed app reported (`app` the first)
     changed_by: str | None = None  # who asked for the car's last change (None: not known)
+    rollout: dict[str, Any] | None = None  # where it stands in a rollout (schemas/rollout.py)
+    desired: str | None = None  # the revision it would apply (its source's tip, last seen)
 
 
 def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicle]]:
@@ -64,6 +71,31 @@ def read(repo_path: Path, branch: str = "main") -> tuple[str | None, list[Vehicl
     return tip, list(seen.values())
 
 
+def rollout_at(repo_path: Path, tip: str | None) -> RolloutSpec | None:
+    """The rollout the fleet's `desired-state.yaml` declares at `tip` (None: none, or a
+    file that cannot be read: the cars' reports say why)."""
+    from reconciler.base.loading import load
+    from reconciler.core.documents import desired_document
+    from reconciler.workflow.source import DEFAULT_FILE
+
+    data = None if tip is None else clone.read_at(repo_path, tip, DEFAULT_FILE)
+    if data is None:
+        return None
+    try:
+        return desired_document(load(Path(DEFAULT_FILE),
+                                     data.decode("utf-8", "replace"))).desired.rollout
+    except LpamError:
+        return None
+
+
+def silence(repo_path: Path, tip: str | None) -> float:
+    """How long a car may stay silent before it is `unknown`: the rollout's
+    `silent_seconds` at `tip`, else `SILENT`."""
+    rollout = rollout_at(repo_path, tip)
+    return SILENT if rollout is None or rollout.silent_seconds is None else \
+        rollout.silent_seconds
+
+
 def _row(vehicle: str, status: CarStatus, tip: str | None, when: datetime) -> Vehicle:
     agent, app = status.agent, status.app
     last = agent.last_attempt
@@ -78,7 +110,46 @@ def _row(vehicle: str, status: CarStatus, tip: str | None, when: datetime) -> Ve
         f"{status.override.by} since {status.override.since}",
         apps=tuple(a.model_dump(mode="json") for a in status.installed()),
         changed_by=None if status.last_change is None or status.last_change.by is None
-        else status.last_change.by.shown)
+        else status.last_change.by.shown,
+        rollout=None if agent.rollout is None else agent.rollout.model_dump(mode="json"),
+        desired=agent.desired_revision)
+
+
+SILENT = 13 * 3600.0
+"""Past this, a car with no report is `unknown`, when the fleet declares no rollout: twice
+the default heartbeat (6 h) and an hour, so a quiet car that reports at its heartbeat is
+never called unknown. A rollout's `silent_seconds` replaces it: the lab said there how long
+a silence it tolerates."""
+
+
+def state_of(row: Vehicle, now: datetime, *, silent: float = SILENT) -> tuple[State, str]:
+    """The car's state (report/fleetview.py: confirmed, waiting, rolled back, unknown) and
+    the words that say which revision, since when, which gate, why — from its report
+    alone, judged at `now`."""
+    seconds = age(row, now)
+    if row.follows is None and row.applied is None and row.reason is not None:
+        return "unknown", f"its report cannot be read: {row.reason}"
+    if seconds >= silent:
+        return "unknown", f"no report since {row.last_seen} ({ago(seconds)})"
+    applied = (row.applied or "nothing")[:12]
+    stage = (row.rollout or {}).get("stage")
+    why = (row.rollout or {}).get("reason") or row.reason
+    if stage == "rolled back" or row.last_pass in ("rolled back", "failed"):
+        failed = (row.rollout or {}).get("revision") if stage == "rolled back" else None
+        return "rolled back", f"{(failed or 'a revision')[:12]} failed: {why}; " \
+            f"runs {applied}"
+    if stage in ("waiting", "halted") or row.last_pass == "deferred":
+        since = (row.rollout or {}).get("since")
+        return "waiting", f"{why}{f' (since {since})' if since else ''}; runs {applied}"
+    stopped = [str(a.get("name")) for a in row.apps if a.get("running") is False] or \
+        ([row.app] if row.app and row.running is False else [])
+    if stopped:
+        return "waiting", f"runs {applied}, but {', '.join(stopped)} does not run: its " \
+            "health is not proven"
+    if stage == "proving":
+        return "confirmed", f"runs {applied}, health checks passed; proving it: {why}"
+    return "confirmed", f"runs {applied}, health checks passed" + \
+        (", proven" if stage == "proven" else "")
 
 
 YES_NO = {True: "yes", False: "no", None: "?"}
@@ -119,25 +190,34 @@ def ago(seconds: float) -> str:
     return f"{int(seconds // 86400)} d ago"
 
 
-def as_json(tip: str | None, rows: list[Vehicle], *, now: datetime) -> dict[str, Any]:
-    return {"tip": tip, "vehicles": [{**asdict(row), "age_seconds": int(age(row, now)),
-                                      "age": ago(age(row, now))} for row in rows]}
+def as_json(tip: str | None, rows: list[Vehicle], *, now: datetime,
+            silent: float = SILENT) -> dict[str, Any]:
+    found = []
+    for row in rows:
+        state, detail = state_of(row, now, silent=silent)
+        found.append({**asdict(row), "state": state, "detail": detail,
+                      "age_seconds": int(age(row, now)), "age": ago(age(row, now))})
+    return {"tip": tip, "vehicles": found}
 
 
-def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime) -> str:
+def as_table(tip: str | None, rows: list[Vehicle], *, now: datetime,
+             silent: float = SILENT) -> str:
     if not rows:
         return ("No vehicle has published its status yet (no status/* branches: fetch, or "
                 "check that the cars may push to this repository).")
-    header = ("Vehicle", "Follows", "Applied", "Current", "App", "Running", "Changed by",
-              "Last pass", "Last report")
+    header = ("Vehicle", "State", "Follows", "Applied", "Current", "App", "Running",
+              "Changed by", "Last pass", "Last report")
+    states = [state_of(r, now, silent=silent) for r in rows]
     cells = [tuple(printable(v)[:60] for v in (
-        r.vehicle, r.follows or "?", (r.applied or "none")[:12],
+        r.vehicle, state[0], r.follows or "?", (r.applied or "none")[:12],
         YES_NO[r.up_to_date],
         _apps(r) + (f" (local override: {r.override})" if r.override else ""),
         _running(r), r.changed_by or "-",
         (r.last_pass or "-") + (f": {r.reason}" if r.reason else ""),
-        ago(age(r, now)))) for r in rows]
+        ago(age(r, now)))) for r, state in zip(rows, states)]
     lines = columns(header, cells)
+    lines += [f"  {printable(r.vehicle)} {state}: {printable(detail)}"
+              for r, (state, detail) in zip(rows, states)]
     lines.append(f"\nThe cars follow {(tip or 'an unknown revision')[:12]}. A car reports "
                  "when its status changes and at least every\nheartbeat (agent.yaml "
                  "heartbeat_seconds, 6 h unless set): a much older report means it is off "
