@@ -67,3 +67,26 @@ def published(repo_path: Path, *, branch: str, prefixes: Sequence[bytes],
             if isinstance(blob, Blob):
                 found.append(Published(name, blob.as_raw_string(), commit.commit_time))
     return (tip_id.decode("ascii") if tip_id else None), found
+
+
+def read_at(repo_path: Path, commit: str, path: str) -> bytes | None:
+    """The file `path` at `commit` of the clone (None when either is absent)."""
+    from dulwich.errors import NotGitRepository
+    from dulwich.object_store import tree_lookup_path
+    from dulwich.objects import Blob, Commit, ObjectID
+    from dulwich.repo import Repo
+
+    try:
+        repo = Repo(str(repo_path))
+    except NotGitRepository:
+        return None
+    with repo:
+        try:
+            found = repo[ObjectID(commit.encode("ascii"))]
+            if not isinstance(found, Commit):
+                return None
+            _, sha = tree_lookup_path(repo.__getitem__, found.tree, path.encode())
+            blob = repo[sha]
+        except (KeyError, ValueError):
+            return None
+        return blob.as_raw_string() if isinstance(blob, Blob) else None
