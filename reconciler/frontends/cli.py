@@ -286,7 +286,12 @@ def _gates_install_bundle(new: New) -> None:
 
 def _fleet_pin_services(new: New) -> None:
     fleet = new("fleet", "the fleet's status, read from a clone of its repository")
-    fleet.add_argument("action", choices=("status",))
+    fleet.add_argument("action", choices=("status", "report"),
+                       help="status: one line per car; report: a static page (HTML + SVG) "
+                       "of every car's state and timeline")
+    fleet.add_argument("-o", "--out", type=Path, default=Path("fleet-report"),
+                       help="report: the folder to write index.html in "
+                       "(default: fleet-report)")
     fleet.add_argument("--repo", type=Path, default=Path("."),
                        help="a clone of the desired-state repository (default: here)")
     fleet.add_argument("--branch", default="main", help="the branch the cars follow")
@@ -778,10 +783,18 @@ def cmd_fleet(args: argparse.Namespace, layout: Layout) -> int:
     from reconciler.workflow import fleet
     from reconciler.workflow.machine import now
 
+    if args.action == "report":
+        from reconciler.workflow.fleetreport import write_report
+
+        written = write_report(args.repo, args.out, branch=args.branch, now=now())
+        print(f"Wrote {written}: open it in a browser (no server needed), or publish the "
+              "folder with your git host's pages.")
+        return EXIT_OK
     tip, rows = fleet.read(args.repo, args.branch)
     at = now()  # the ages of the reports are measured against this machine's clock
-    print(json.dumps(fleet.as_json(tip, rows, now=at), indent=2) if args.json
-          else fleet.as_table(tip, rows, now=at))
+    silent = fleet.silence(args.repo, tip)
+    print(json.dumps(fleet.as_json(tip, rows, now=at, silent=silent), indent=2) if args.json
+          else fleet.as_table(tip, rows, now=at, silent=silent))
     return EXIT_OK
 
 

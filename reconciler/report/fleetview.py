@@ -71,3 +71,14 @@ class FleetView:
     revisions: tuple[RevisionSummary, ...]
     rollout: str | None  # the rollout in force, in words (None: none declared)
     since: datetime  # the timelines' start (the report's end is `generated`)
+
+
+def ago(seconds: float) -> str:
+    """An age as people say it: "45 s ago", "12 min ago", "3 h ago", "4 d ago"."""
+    if seconds < -60:
+        return f"{ago(-seconds).removesuffix(' ago')} ahead (the car's clock)"
+    seconds = max(seconds, 0)
+    for unit, size, below in (("s", 1, 60), ("min", 60, 3600), ("h", 3600, 48 * 3600)):
+        if seconds < below:
+            return f"{int(seconds // size)} {unit} ago"
+    return f"{int(seconds // 86400)} d ago"

@@ -22,7 +22,7 @@ from reconciler.adapters import clone
 from reconciler.base.errors import ConfigError, LpamError
 from reconciler.base.text import columns, printable
 from reconciler.core.publication import STATUS_FILE, read_status_file
-from reconciler.report.fleetview import State
+from reconciler.report.fleetview import State, ago
 from schemas.fleet import CarStatus
 from schemas.rollout import RolloutSpec
 
@@ -177,17 +177,6 @@ def _seen(when: datetime) -> str:
 def age(row: Vehicle, now: datetime) -> float:
     """Seconds since the car's last report, by `now` (negative: the car's clock is ahead)."""
     return (now - datetime.fromisoformat(row.last_seen)).total_seconds()
-
-
-def ago(seconds: float) -> str:
-    """An age as people say it: "45 s ago", "12 min ago", "3 h ago", "4 d ago"."""
-    if seconds < -60:
-        return f"{ago(-seconds).removesuffix(' ago')} ahead (the car's clock)"
-    seconds = max(seconds, 0)
-    for unit, size, below in (("s", 1, 60), ("min", 60, 3600), ("h", 3600, 48 * 3600)):
-        if seconds < below:
-            return f"{int(seconds // size)} {unit} ago"
-    return f"{int(seconds // 86400)} d ago"
 
 
 def as_json(tip: str | None, rows: list[Vehicle], *, now: datetime,

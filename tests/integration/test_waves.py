@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 from collections.abc import Callable, Iterator
@@ -30,8 +31,10 @@ from reconciler.base.layout import Layout
 from reconciler.core.documents import load_agent
 from reconciler.workflow import fleet
 from reconciler.workflow.events import Event, Note
+from reconciler.workflow.fleetreport import write_report
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.sync import Synced, sync
+from tests.browser import PHONE, dom, png_size, screenshot
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import TICKER, processes
 from tests.integration.several import running
@@ -222,6 +225,21 @@ def test_a_revision_goes_wave_by_wave_and_a_failed_canary_halts_the_rest(
     assert states["car-03"][0] == "rolled back"
     assert states["car-01"][0] == "waiting" and "halted" in states["car-01"][1]
     assert states["car-02"][0] == "unknown"
+
+    # and so does the report, opened in a browser as a lab manager would
+    page = write_report(clone, tmp_path / "report", now=clock.now)
+    built = dom(page, tmp_path / "browser")
+    shown = {vehicle: re.sub(r"<[^>]+>", " ", row) for vehicle, row in re.findall(
+        r'<tr id="car-([\w-]+)" data-state="[^"]+">(.*?)</tr>', built, re.S)}
+    assert set(shown) == set(CARS)
+    assert "rolled back" in shown["car-03"] and "halted: car-03" in shown["car-01"]
+    assert "unknown" in shown["car-02"] and "waiting" in shown["car-04"]
+    canary_line = re.search(r'<svg data-vehicle="car-03".*?</svg>', built, re.S)
+    assert canary_line is not None
+    assert 'data-kind="ran"' in canary_line.group(0)  # from its published timeline
+    assert re.search(r'data-kind="rollback"[^>]*><title>rolled back: ', canary_line.group(0))
+    assert "Rollout: waves car-03 → car-01, car-02 → *" in built
+    assert png_size(screenshot(page, tmp_path / "browser"))[0] == PHONE[0]
 
     # the lab reverts R3 in git: that is the fleet's rollback, and no wave holds it
     repo.commit("Revert R3", {"desired-state.yaml": desired(url, "ctl-b")})

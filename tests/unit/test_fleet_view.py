@@ -9,7 +9,8 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from reconciler.workflow.fleet import Vehicle, ago, as_json, as_table, state_of
+from reconciler.report.fleetview import ago
+from reconciler.workflow.fleet import Vehicle, as_json, as_table, state_of
 
 NOW = datetime(2026, 11, 20, 15, 0, tzinfo=timezone.utc)
 TIP = "c" * 40
