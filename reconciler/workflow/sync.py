@@ -190,10 +190,13 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
 def _staged(machine: Machine, config: AgentConfig, vehicle: str, revision: str,
             wait: RolloutState, report: Report) -> Synced:
     """A car whose wave's turn has not come: the revision is staged (the commits it pins
-    fetched), so that its turn applies with no network; the pass is deferred, as by a
-    closed update gate, with the wave's reason."""
+    fetched), so that its turn applies with no network — unless the rollout is halted:
+    that revision will not be applied here; the pass is deferred, as by a closed update
+    gate, with the wave's reason."""
     reason = wait.reason or wait.stage
     report(Note(f"revision {revision[:12]} waits: {reason}"))
+    if wait.stage == "halted":  # it will not be applied: nothing to stage
+        return Synced("deferred", revision, reason)
     staged = _fetch_pins(machine, config, vehicle, revision, report)
     if staged.result != "fetched":
         reason += f" (not staged: {staged.reason})"
