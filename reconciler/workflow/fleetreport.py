@@ -53,7 +53,7 @@ def gather(repo_path: Path, *, branch: str = "main", now: datetime,
             vehicle=row.vehicle, state=state, detail=detail, revision=row.applied,
             apps=tuple(f"{a.get('name')} ({_running(a.get('running'))})" for a in row.apps)
             or ((f"{row.app} ({_running(row.running)})",) if row.app else ()),
-            gate=detail if state == "waiting" else None, override=row.override,
+            gate=_waits_for(row) if state == "waiting" else None, override=row.override,
             reported=datetime.fromisoformat(row.last_seen),
             marks=tuple(sorted((m for m in marks if (m.end or now) >= since),
                                key=lambda m: m.start))))
@@ -70,6 +70,20 @@ def write_report(repo_path: Path, out: Path, *, branch: str = "main",
     page = out / "index.html"
     write_atomic(page, render(gather(repo_path, branch=branch, now=now)))
     return page
+
+
+def _waits_for(row: fleet.Vehicle) -> str:
+    """What a waiting car waits for, in a few words (its row's "why" says the rest)."""
+    rollout, reason = row.rollout or {}, row.reason or ""
+    if rollout.get("stage") == "halted":
+        return "a halted rollout: a new revision or a revert"
+    if rollout.get("stage") == "waiting" and "waits for wave" in reason:
+        return f"its wave's turn (wave {rollout.get('wave')})"
+    if rollout.get("stage") == "waiting" and "no wave" in reason:
+        return "a wave that names it"
+    if row.last_pass == "deferred":
+        return "an update gate"
+    return "its apps to run"
 
 
 def _summary(cars: list[CarView], wanted: dict[str, str]) -> tuple[RevisionSummary, ...]:

@@ -234,6 +234,7 @@ def test_a_revision_goes_wave_by_wave_and_a_failed_canary_halts_the_rest(
     assert set(shown) == set(CARS)
     assert "rolled back" in shown["car-03"] and "halted: car-03" in shown["car-01"]
     assert "unknown" in shown["car-02"] and "waiting" in shown["car-04"]
+    assert "a halted rollout" in shown["car-04"]  # what it waits for, in a few words
     canary_line = re.search(r'<svg data-vehicle="car-03".*?</svg>', built, re.S)
     assert canary_line is not None
     assert 'data-kind="ran"' in canary_line.group(0)  # from its published timeline
