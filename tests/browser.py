@@ -44,10 +44,11 @@ def dom(page: Path, home: Path) -> str:
     return _run(["--dump-dom", page.resolve().as_uri()], home / "dom")
 
 
-def screenshot(page: Path, home: Path) -> bytes:
-    """A PNG of the page at a phone's width, `LONG` pixels down."""
+def screenshot(page: Path, home: Path, *, height: int = LONG) -> bytes:
+    """A PNG of the page at a phone's width, `height` pixels down (default: the page's
+    whole length)."""
     shot = home / "shot.png"
-    _run([f"--screenshot={shot}", f"--window-size={PHONE[0]},{LONG}",
+    _run([f"--screenshot={shot}", f"--window-size={PHONE[0]},{height}",
           page.resolve().as_uri()], home / "shot")
     return shot.read_bytes()
 

@@ -235,11 +235,12 @@ def test_a_revision_goes_wave_by_wave_and_a_failed_canary_halts_the_rest(
     assert "rolled back" in shown["car-03"] and "halted: car-03" in shown["car-01"]
     assert "unknown" in shown["car-02"] and "waiting" in shown["car-04"]
     assert "a halted rollout" in shown["car-04"]  # what it waits for, in a few words
-    canary_line = re.search(r'<svg data-vehicle="car-03".*?</svg>', built, re.S)
+    canary_line = re.search(r'<svg [^>]*data-vehicle="car-03">.*?</svg>', built, re.S)
     assert canary_line is not None
     assert 'data-kind="ran"' in canary_line.group(0)  # from its published timeline
-    assert re.search(r'data-kind="rollback"[^>]*><title>rolled back: ', canary_line.group(0))
-    assert "Rollout: waves car-03 → car-01, car-02 → *" in built
+    assert re.search(r'data-kind="rollback"><title>[^<]*ctl-bad: its health check '
+                     r'`./healthy.sh` failed', canary_line.group(0)), canary_line.group(0)
+    assert "<dt>Rollout</dt><dd>waves car-03 → car-01, car-02 → *" in built
     assert png_size(screenshot(page, tmp_path / "browser"))[0] == PHONE[0]
 
     # the lab reverts R3 in git: that is the fleet's rollback, and no wave holds it
