@@ -213,9 +213,12 @@ def test_every_installed_app_as_wanted_is_said_truly() -> None:
         seen.add(type(decision.reason))
     assert seen == {Reconfigure, Held, Unsupervised, NotRunning, StartedOutside, Running,
                     Finish}
+    # find() stops at the first case of the kind, so its budget costs nothing when the kind
+    # is common; KnownAfterFetch is about 2% of cases, and twice in CI 500 examples held
+    # none (hypothesis's generation is not uniform): 5,000 leaves no room for that luck
     for kind in (Install, Adopt, Remove, Moved, KnownAfterFetch, NewGeneration, FolderMissing):
         find(cases(), lambda case, kind=kind: isinstance(case[0].reason, kind),  # type: ignore[misc]
-             settings=settings(max_examples=500, deadline=None, database=None,
+             settings=settings(max_examples=5000, deadline=None, database=None,
                                phases=[Phase.generate]))
 
 
