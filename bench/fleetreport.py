@@ -23,7 +23,8 @@ import time
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
-from dulwich.objects import Blob, Commit, Tree
+from dulwich.objects import Blob, Commit, ObjectID, Tree
+from dulwich.refs import Ref
 from dulwich.repo import Repo
 
 from reconciler.core.publication import status_file
@@ -49,7 +50,7 @@ def build(path: Path, cars: int, days: int, seed: int = 34) -> None:
     pick = random.Random(seed)
     repo = Repo.init(str(path), mkdir=True)
     tip = _commit(repo, {"desired-state.yaml": DESIRED.encode()}, "R2", NOW)
-    repo.refs[b"refs/heads/main"] = tip
+    repo.refs[Ref(b"refs/heads/main")] = tip
     for number in range(1, cars + 1):
         vehicle = f"car-{number:03d}"
         edges, passes = _month(pick, days)
@@ -65,7 +66,7 @@ def build(path: Path, cars: int, days: int, seed: int = 34) -> None:
                     "edges": [e.model_dump(mode="json", exclude_none=True) for e in edges]}
         files = {"status.json": status_file(status, [app]),
                  "timeline.json": json.dumps(timeline, separators=(",", ":")).encode()}
-        repo.refs[f"refs/heads/status/{vehicle}".encode()] = _commit(
+        repo.refs[Ref(f"refs/heads/status/{vehicle}".encode())] = _commit(
             repo, files, f"status of {vehicle}", NOW - timedelta(minutes=pick.randint(1, 300)))
 
 
@@ -90,7 +91,7 @@ def _month(pick: random.Random, days: int) -> tuple[list[Edge], list[Attempt]]:
     return edges, passes
 
 
-def _commit(repo: Repo, files: dict[str, bytes], message: str, when: datetime) -> bytes:
+def _commit(repo: Repo, files: dict[str, bytes], message: str, when: datetime) -> ObjectID:
     tree = Tree()
     for name, data in files.items():
         blob = Blob.from_string(data)

@@ -171,7 +171,7 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
     rollout = waves.rollout_of(machine, config, vehicle, revision)
     if rollout is not None and revision != status.applied_revision:
         wait = waves.held(machine, config, rollout, vehicle, revision, status,
-                          fetched=watch if offline is None else (), now=machine.clock())
+                          fetched=watch if offline is None else None, now=machine.clock())
         if wait is not None:
             return _record(machine, status.model_copy(update={"rollout": wait}),
                            _staged(machine, config, vehicle, revision, wait, report))

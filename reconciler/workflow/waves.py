@@ -66,15 +66,17 @@ def watch(machine: Machine, config: AgentConfig, vehicle: str,
 
 
 def held(machine: Machine, config: AgentConfig, spec: RolloutSpec, vehicle: str,
-         revision: str, status: AgentStatus, *, fetched: tuple[str, ...],
+         revision: str, status: AgentStatus, *, fetched: tuple[str, ...] | None,
          now: datetime) -> RolloutState | None:
     """Where this car stands when it may not apply `revision` yet; None when it may (its
     turn came, or the revision returns it to what it ran before). `fetched`: the status
-    branches this pass's fetch brought."""
+    branches this pass's fetch brought; None when the pass is offline: then the statuses
+    the store holds answer, with no second try at the network (older statuses prove less,
+    never more)."""
     if _returns(machine, config, vehicle, revision, status.applied_revision):
         return None
     needed = watched(spec, vehicle)
-    if needed and needed != fetched:
+    if fetched is not None and needed and needed != fetched:
         _fetch_statuses(machine, config, needed)
     decided = turn(spec, vehicle, revision, peers(machine, config, vehicle), now)
     if decided.go:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime, timedelta, timezone
+from pathlib import Path
 
 import pytest
 from pydantic import ValidationError
@@ -120,3 +121,26 @@ def test_a_bad_rollout_is_refused_with_what_to_do(waves: list[list[str]], said: 
     with pytest.raises(ValidationError) as caught:
         RolloutSpec(waves=waves)
     assert said in str(caught.value)
+
+
+def test_an_offline_pass_decides_from_the_statuses_it_holds_without_a_second_fetch(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With no network, a waiting car must not try the network again for the statuses
+    (a hotspot's timeout per pass): the store's copies decide, and prove nothing new."""
+    from reconciler.base.layout import Layout
+    from reconciler.workflow import waves
+    from reconciler.workflow.machine import Machine
+    from schemas.agent import AgentConfig, AgentStatus
+
+    asked: list[tuple[str, ...]] = []
+    monkeypatch.setattr(waves, "_fetch_statuses", lambda machine, config, globs:
+                        asked.append(globs))
+    machine = Machine(Layout(tmp_path))
+    config = AgentConfig.model_validate({"version": 1, "source": {
+        "url": "git://127.0.0.1:9/fleet.git"}, "vehicle": "car-01"})
+    for fetched, expected in ((None, []), ((), [("car-03",)]), (("car-03",), [])):
+        asked.clear()
+        wait = waves.held(machine, config, SPEC, "car-01", R, AgentStatus(),
+                          fetched=fetched, now=NOW)
+        assert wait is not None and wait.stage == "waiting" and wait.wave == 2
+        assert asked == expected, fetched
