@@ -38,6 +38,7 @@ from reconciler.core.documents import load_agent
 from reconciler.workflow.events import Event
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.sync import sync
+from schemas.timeline import Stamp
 from tests.gitserver import GitDaemon, RepoBuilder
 
 CATALOG = """\
@@ -171,6 +172,9 @@ def _car(root: Path, vehicle: str, url: str, clock: Clock) -> Car:
                       f"vehicle: {vehicle}\n")
     machine = Machine(Layout(root), given_services=MemoryServices(), network_timeout=30)
     machine.clock = clock
+    start = clock.now  # the boot's clock moves with the simulation's: one boot each
+    machine.stamp = lambda: Stamp(boot=f"boot-{vehicle}", wall=clock.now,
+                                  mono=(clock.now - start).total_seconds())
     return Car(vehicle, machine)
 
 

@@ -72,3 +72,8 @@ class RolloutState(BaseModel):
     reason: str | None = Field(default=None, description="why it waits or was halted")
     applied: str | None = Field(default=None, description="when it applied the revision "
                                 "(proving, proven)")
+    boot: str | None = Field(default=None, description="the boot it applied the revision "
+                             "in (the kernel's boot id)")
+    mono: float | None = Field(default=None, description="seconds since that boot when it "
+                               "applied it (CLOCK_BOOTTIME): the proof is measured on this "
+                               "clock, never on the wall clock a Pi sets late")

@@ -114,11 +114,12 @@ def turn(spec: RolloutSpec, vehicle: str, revision: str, peers: Mapping[str, Pee
     return Turn(True, number)
 
 
-def stage_of(spec: RolloutSpec, applied: datetime, now: datetime, *, running: bool) -> \
+def stage_of(spec: RolloutSpec, ran: float, *, running: bool) -> \
         tuple[RolloutStage, str | None]:
-    """This car's own stage once it applied the revision at `applied`: proven after
-    `prove_seconds` with its apps running, else proving (and why it is not proven yet)."""
-    ran = (now - applied).total_seconds()
+    """This car's own stage once it has run the revision `ran` seconds: proven after
+    `prove_seconds` with its apps running, else proving (and why it is not proven yet).
+    `ran` is measured on the boot's monotonic clock (workflow/waves.py): a Pi's wall clock
+    jumps hours when GPS or NTP sets it after a boot, which must not prove anything."""
     if not running:
         return "proving", "an app does not run: the proof waits until it runs again"
     if ran >= spec.prove_seconds:

@@ -74,6 +74,7 @@ if TYPE_CHECKING:
 
     from schemas.override import LocalOverride
     from schemas.rollout import RolloutState
+    from schemas.timeline import Stamp
 
 # Imported inside functions: signatures, publication, targets and planning load only on the
 # sync step that uses them (0-30 modules each, no heavy library); a small start-up gain.
@@ -181,9 +182,10 @@ def _pass(machine: Machine, config: AgentConfig, *, report: Report,
                     report=report, local=offline is not None)
     if done.result in ("applied", "nothing to do"):
         status = status.model_copy(update={"applied_revision": revision})
-    status = status.model_copy(update={"rollout": waves.after(
-        rollout, vehicle, revision, done.result, done.reason, status.rollout,
-        running=_running(machine), now=machine.clock())})
+    if rollout is not None or status.rollout is not None:  # none: nothing to ask the apps
+        status = status.model_copy(update={"rollout": None if rollout is None else waves.after(
+            rollout, vehicle, revision, done.result, done.reason, status.rollout,
+            running=_running(machine), stamp=_stamp(machine))})
     return _record(machine, status, done)
 
 
@@ -201,6 +203,13 @@ def _staged(machine: Machine, config: AgentConfig, vehicle: str, revision: str,
     if staged.result != "fetched":
         reason += f" (not staged: {staged.reason})"
     return Synced("deferred", revision, reason)
+
+
+def _stamp(machine: Machine) -> Stamp:
+    """Now, on the boot's clock and the wall clock (a test's, where it plays the clock)."""
+    from reconciler.engine.execution.provenance import stamp_now
+
+    return stamp_now(machine.stamp, machine.clock)
 
 
 def _running(machine: Machine) -> bool:

@@ -34,6 +34,7 @@ from schemas.rollout import RolloutSpec, RolloutState
 if TYPE_CHECKING:
     from schemas.agent import AgentConfig, AgentStatus
     from schemas.desired import DesiredState
+    from schemas.timeline import Stamp
 
 # Imported inside functions: clone, publication, the lock and its defaults load only when
 # a car waits and reads the others' statuses; a pass with no rollout never needs them.
@@ -89,20 +90,27 @@ def held(machine: Machine, config: AgentConfig, spec: RolloutSpec, vehicle: str,
                         reason=decided.reason)
 
 
-def after(spec: RolloutSpec | None, vehicle: str, revision: str, result: str,
+def after(spec: RolloutSpec, vehicle: str, revision: str, result: str,
           reason: str | None, last: RolloutState | None, *, running: bool,
-          now: datetime) -> RolloutState | None:
-    """Where this car stands after a pass that tried `revision` and ended in `result`."""
-    if spec is None:
-        return None
+          stamp: Stamp) -> RolloutState | None:
+    """Where this car stands after a pass that tried `revision` and ended in `result`.
+    How long it has run the revision is counted on the boot's clock (`stamp`): since the
+    apply, or since this boot began when the car rebooted since (its apps started again:
+    the proof starts again with them)."""
+    now = stamp.wall
     wave = wave_of(spec, vehicle)
     mine = last if last is not None and last.revision == revision else None
     if result in ("applied", "nothing to do"):
+        kept = mine is not None and mine.applied is not None
         applied = mine.applied if mine is not None and mine.applied else _time(now)
-        stage, why = stage_of(spec, datetime.fromisoformat(applied), now, running=running)
+        boot, mono = (mine.boot, mine.mono) if mine is not None and kept else \
+            (stamp.boot, stamp.mono)
+        if boot != stamp.boot or mono is None:
+            boot, mono = stamp.boot, 0.0  # rebooted: counted from this boot's start
+        stage, why = stage_of(spec, stamp.mono - mono, running=running)
         since = mine.since if mine is not None and mine.stage == stage else _time(now)
         return RolloutState(revision=revision, wave=wave, stage=stage, since=since,
-                            reason=why, applied=applied)
+                            reason=why, applied=applied, boot=boot, mono=mono)
     if result in ("rolled back", "failed"):
         since = mine.since if mine is not None and mine.stage == "rolled back" else _time(now)
         return RolloutState(revision=revision, wave=wave, stage="rolled back", since=since,

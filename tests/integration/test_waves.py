@@ -34,6 +34,7 @@ from reconciler.workflow.events import Event, Note
 from reconciler.workflow.fleetreport import write_report
 from reconciler.workflow.machine import Machine
 from reconciler.workflow.sync import Synced, sync
+from schemas.timeline import Stamp
 from tests.browser import PHONE, dom, png_size, screenshot
 from tests.gitserver import GitDaemon, RepoBuilder
 from tests.integration.apps import TICKER, processes
@@ -87,6 +88,9 @@ class Car:
         layout = Layout(self.root)
         machine = Machine.at(layout, services="supervisor", network_timeout=30)
         machine.clock = self.clock
+        # the boot's clock moves with the test's: one boot, started at START
+        machine.stamp = lambda: Stamp(boot="boot-1", wall=self.clock.now,
+                                      mono=(self.clock.now - START).total_seconds())
 
         def report(event: Event) -> None:
             if isinstance(event, Note):

@@ -10,6 +10,7 @@ from pydantic import ValidationError
 
 from reconciler.core.rollout import Peer, members, stage_of, turn, watched, wave_of
 from schemas.rollout import RolloutSpec, RolloutStage, RolloutState
+from schemas.timeline import Stamp
 
 NOW = datetime(2026, 11, 20, 8, 0, tzinfo=timezone.utc)
 R = "a" * 40
@@ -102,12 +103,38 @@ def test_a_car_no_wave_names_never_takes_the_revision() -> None:
 
 
 def test_a_car_proves_the_revision_after_prove_seconds_with_its_apps_running() -> None:
-    applied = NOW - timedelta(seconds=599)
-    assert stage_of(SPEC, applied, NOW, running=True)[0] == "proving"
-    assert stage_of(SPEC, applied - timedelta(seconds=1), NOW, running=True) == \
-        ("proven", None)
-    stage, why = stage_of(SPEC, applied - timedelta(hours=1), NOW, running=False)
+    assert stage_of(SPEC, 599, running=True)[0] == "proving"
+    assert stage_of(SPEC, 600, running=True) == ("proven", None)
+    stage, why = stage_of(SPEC, 3600, running=False)
     assert stage == "proving" and "does not run" in (why or "")
+
+
+def stamp(boot: str, mono: float, wall: datetime) -> Stamp:
+    return Stamp(boot=boot, mono=mono, wall=wall)
+
+
+def test_the_proof_is_counted_on_the_boot_clock_not_the_wall_clock_a_pi_sets_late() -> None:
+    from reconciler.workflow.waves import after
+
+    applied = after(SPEC, "car-03", R, "applied", None, None, running=True,
+                    stamp=stamp("b1", 40.0, NOW))
+    assert applied is not None and applied.stage == "proving"
+    # GPS sets the clock five hours on, one minute later: nothing is proven by that
+    jumped = after(SPEC, "car-03", R, "nothing to do", None, applied, running=True,
+                   stamp=stamp("b1", 100.0, NOW + timedelta(hours=5)))
+    assert jumped is not None and jumped.stage == "proving"
+    proven = after(SPEC, "car-03", R, "nothing to do", None, jumped, running=True,
+                   stamp=stamp("b1", 640.0, NOW + timedelta(hours=5, minutes=9)))
+    assert proven is not None and proven.stage == "proven"
+    assert proven.applied == applied.applied  # when it applied, as the wall clock said
+    # a reboot starts the apps again, and the proof with them (from the boot's start)
+    rebooted = after(SPEC, "car-03", R, "nothing to do", None, proven, running=True,
+                     stamp=stamp("b2", 30.0, NOW + timedelta(hours=6)))
+    assert rebooted is not None and rebooted.stage == "proving"
+    assert (rebooted.boot, rebooted.mono) == ("b2", 0.0)
+    again = after(SPEC, "car-03", R, "nothing to do", None, rebooted, running=True,
+                  stamp=stamp("b2", 600.0, NOW + timedelta(hours=6, minutes=10)))
+    assert again is not None and again.stage == "proven"
 
 
 @pytest.mark.parametrize(("waves", "said"), [
