@@ -19,10 +19,12 @@ from pathlib import Path
 from reconciler.adapters import clone
 from reconciler.base.atomic import write_atomic
 from reconciler.base.errors import LpamError
+from reconciler.core.provenance import utc
 from reconciler.core.publication import STATUS_FILE, read_status_file
 from reconciler.report.fleetview import CarView, FleetView, Mark, RevisionSummary
 from reconciler.workflow import fleet
 from reconciler.workflow.provenance import TIMELINE_FILE, known_published
+from schemas.fleet import CarStatus
 
 # Imported inside functions: the page's drawing loads only when a page is written.
 
@@ -46,9 +48,9 @@ def gather(repo_path: Path, *, branch: str = "main", now: datetime,
     wanted: dict[str, str] = {}
     for row in sorted(rows, key=lambda r: r.vehicle):
         state, detail = fleet.state_of(row, now, silent=silent)
-        passes = _passes(statuses.get(row.vehicle), row.vehicle)
+        status = _status(statuses.get(row.vehicle), row.vehicle)
         wanted[row.vehicle] = row.desired or tip or "?"
-        marks = _ran(timelines.get(row.vehicle), row, since) + passes
+        marks = _ran(timelines.get(row.vehicle), status, since) + _passes(status)
         cars.append(CarView(
             vehicle=row.vehicle, state=state, detail=detail, revision=row.applied,
             apps=tuple(f"{a.get('name')} ({_running(a.get('running'))})" for a in row.apps)
@@ -94,9 +96,10 @@ def _summary(cars: list[CarView], wanted: dict[str, str]) -> tuple[RevisionSumma
                                  c["unknown"]) for revision, c in counts.items())
 
 
-def _ran(content: bytes | None, row: fleet.Vehicle, since: datetime) -> list[Mark]:
+def _ran(content: bytes | None, status: CarStatus | None, since: datetime) -> list[Mark]:
     """What ran: the published timeline's intervals (a power cut's end is uncertain and
-    says so), else what the status says runs since the car's last change."""
+    says so), else — a car whose lpam publishes no timeline — what its status says runs,
+    since its last change."""
     if content is not None:
         try:
             known = known_published(content)
@@ -118,18 +121,34 @@ def _ran(content: bytes | None, row: fleet.Vehicle, since: datetime) -> list[Mar
                     assert end is not None
                     marks.append(Mark(end, end, "rollback", f"{interval.app} rolled back"))
             return marks
-    return []
+    return [] if status is None else _from_status(status, since)
 
 
-def _passes(content: bytes | None, vehicle: str) -> list[Mark]:
+def _from_status(status: CarStatus, since: datetime) -> list[Mark]:
+    """What runs by the status alone: each installed app from the car's last change (its
+    start unknown without one: drawn from the report's start, and said so)."""
+    change = status.last_change
+    start = since if change is None else max(utc(datetime.fromisoformat(change.time)), since)
+    known = "" if change is not None else ", running before this report's start or since " \
+        "a time its status does not say"
+    return [Mark(start, None, "ran", f"{app.name}@{(app.generation or '?')[:12]} (from its "
+                 f"status: it publishes no timeline{known})")
+            for app in status.installed() if app.running]
+
+
+def _status(content: bytes | None, vehicle: str) -> CarStatus | None:
+    """The car's published status (None: none, or damaged: its row says so already)."""
+    if content is None:
+        return None
+    try:
+        return read_status_file(content, where=Path("status", vehicle, STATUS_FILE))
+    except LpamError:
+        return None
+
+
+def _passes(status: CarStatus | None) -> list[Mark]:
     """The car's last passes that were not a plain success: deferrals (a gate, a wave),
     rollbacks and failures, as instants."""
-    if content is None:
-        return []
-    try:
-        status = read_status_file(content, where=Path("status", vehicle, STATUS_FILE))
-    except LpamError:  # a damaged report: its row says so already
-        return []
     if status is None:
         return []
     marks = []
